@@ -1,0 +1,68 @@
+"""Write benchmark results into docs/BENCHMARKS.md, one named section per benchmark.
+
+Each benchmark owns the text between ``<!-- NAME:start -->`` and ``<!-- NAME:end -->``; re-running a
+benchmark replaces its own section and leaves the others untouched.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import platform
+import re
+from pathlib import Path
+
+import torch
+
+DEFAULT_PATH = Path(__file__).resolve().parents[2] / "docs" / "BENCHMARKS.md"
+
+
+def machine_description() -> str:
+    """One line naming the CPU, core count, torch version and date, for every benchmark table."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    gpu = f", GPU {torch.cuda.get_device_name(0)}" if torch.cuda.is_available() else ""
+    return (
+        f"{cpu}, {os.cpu_count()} cores, {torch.get_num_threads()} torch threads{gpu}, "
+        f"torch {torch.__version__}, {_dt.date.today().isoformat()}"
+    )
+
+
+def markdown_table(rows: list[dict], columns: list[str]) -> str:
+    """Render ``rows`` as a GitHub markdown table with the given column order."""
+
+    def fmt(v):
+        if isinstance(v, float):
+            return f"{v:.3f}" if abs(v) < 1000 else f"{v:.0f}"
+        return str(v)
+
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(fmt(r.get(c, "")) for c in columns) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def update_section(name: str, body: str, path: str | Path | None = None) -> Path:
+    """Replace (or append) the section ``name`` of the benchmarks file with ``body``; atomic write."""
+    path = Path(path) if path is not None else DEFAULT_PATH
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    text = (
+        path.read_text()
+        if path.exists()
+        else "# Benchmarks\n\nEvery number below comes from a run of the command shown with it.\n"
+    )
+    block = f"{start}\n{body.strip()}\n{end}"
+    pattern = re.compile(re.escape(start) + r".*?" + re.escape(end), re.S)
+    text = (
+        pattern.sub(lambda _: block, text) if pattern.search(text) else text.rstrip() + "\n\n" + block + "\n"
+    )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,216 @@
+"""Typed configuration of a training run, and the named presets.
+
+Every constant of the method is a field here (or in the field configs it nests), with a docstring
+that tyro turns into ``--help``. A run folder holds the resolved config as ``config.json``, read back
+with :func:`load_config` (plain JSON into dataclasses, never ``eval``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from .models.deformation import DeformationConfig
+from .models.dynamics import DynamicsConfig
+from .train.strategy import DensifyConfig
+
+
+@dataclass
+class OptimConfig:
+    """Learning rates (3DGS for the Gaussians, Deformable-3DGS for the fields) and the loss."""
+
+    means_lr: float = 1.6e-4
+    """Initial position learning rate, multiplied by the scene extent."""
+    means_lr_final: float = 1.6e-6
+    """Final position learning rate (exponential decay), multiplied by the scene extent."""
+    sh0_lr: float = 2.5e-3
+    """Learning rate of the degree-0 SH coefficients."""
+    shN_lr: float = 2.5e-3 / 20
+    """Learning rate of the higher SH coefficients."""
+    opacity_lr: float = 5e-2
+    """Learning rate of the opacity logits."""
+    scale_lr: float = 5e-3
+    """Learning rate of the log-scales."""
+    quat_lr: float = 1e-3
+    """Learning rate of the quaternions."""
+    field_lr: float = 8e-4
+    """Initial learning rate of the deformation and dynamics fields (one Adam for both)."""
+    field_lr_final: float = 1.6e-6
+    """Final learning rate of the fields (exponential decay over the dynamic stage)."""
+    ssim_weight: float = 0.2
+    """Loss = (1 - w) * L1 + w * (1 - SSIM)."""
+
+
+@dataclass
+class DynamicStageConfig:
+    """Stage 2 of TRACE (METHOD.md "Training") and the ablation switches of the paper's Table 4."""
+
+    dt_frames: float = 2.0
+    """Delta t between t' and t in frame intervals (Table 4 row (1): 1, 2 or 3)."""
+    integrator: Literal["rk2", "rk2_paper", "euler", "rk4"] = "rk2"
+    """Integrator of the translation-rotation dynamics (rk2 = midpoint as the authors' code)."""
+    use_deformation: bool = True
+    """Ablation (3): without f_defo the dynamics start from the canonical Gaussians at t = 0."""
+    physics_derivation: bool = True
+    """Ablation (4): when false, f_trd is queried at the target time and its velocities used directly."""
+    straight_through: bool = True
+    """Render the physics position with f_defo's gradient passed straight through (x_phys + dx - dx.detach())."""
+    time_growth_steps: int = 7000
+    """The sampled time range grows in eighths of the training span over this many dynamic steps."""
+    warmup_deformation_steps: int = 0
+    """Dynamic steps rendered with f_defo alone before the physics path is switched on."""
+    extrapolation_requery: bool = True
+    """Extrapolate by re-querying f_trd at every step (Alg. 1 applied progressively); else query once at t_max."""
+    freeze_static_threshold: float = 0.0
+    """Gaussians whose deformation stays below this displacement (scene units) are frozen when extrapolating (0 = off)."""
+
+
+@dataclass
+class TrainConfig:
+    """A TRACE (or DefGS baseline) training run."""
+
+    data: Path = Path("data/scene")
+    """Scene folder in Blender/D-NeRF format (transforms_train.json, ...)."""
+    run: Path = Path("runs/scene")
+    """Output folder: checkpoints, config, logs, renders."""
+    method: Literal["trace", "defgs", "static"] = "trace"
+    """trace = deformation + dynamics; defgs = deformation field alone; static = 3DGS at t = 0 only."""
+    preset: str = "paper"
+    """Name of the preset this config was built from (recorded for reports)."""
+    device: str = "auto"
+    """'auto' (CUDA if present, else CPU), 'cpu' or 'cuda[:i]'."""
+    seed: int = 0
+    """Random seed."""
+    downscale: int = 1
+    """Integer factor by which images are downscaled when loaded."""
+    t_train_end: float | None = None
+    """Only training frames with time <= this are used (None: the dataset's value, else all)."""
+    static_iterations: int = 3000
+    """Stage 1: static 3DGS on the frames at t = 0."""
+    dynamic_iterations: int = 37000
+    """Stage 2: deformation + dynamics on all training frames (the paper runs 40k in total)."""
+    init_points: int = 100_000
+    """Random initial Gaussians in the scene bounds (when the dataset has no points)."""
+    init_extent: float = 1.3
+    """Half-size of the random-init cube when the dataset gives no aabb (Blender scenes: 1.3)."""
+    sh_degree: int = 3
+    """Maximum spherical-harmonics degree."""
+    sh_degree_interval: int = 1000
+    """Raise the active SH degree by one every this many steps."""
+    bf16: bool = False
+    """Run the fields under bfloat16 autocast on CPU (helps on CPUs with AMX)."""
+    backend: str = "auto"
+    """Rasteriser backend: auto, native, reference or gsplat."""
+    checkpoint_every: int = 2000
+    """Write a checkpoint every this many steps (and at the end); a killed run resumes from it."""
+    log_every: int = 100
+    """Log losses and timings every this many steps."""
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    densify: DensifyConfig = field(default_factory=DensifyConfig)
+    deformation: DeformationConfig = field(default_factory=DeformationConfig)
+    dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
+    dynamic: DynamicStageConfig = field(default_factory=DynamicStageConfig)
+
+    @property
+    def total_iterations(self) -> int:
+        return self.static_iterations + (0 if self.method == "static" else self.dynamic_iterations)
+
+
+def paper() -> TrainConfig:
+    """The paper's sizes: 8 x 256 fields, 3k static + 37k dynamic iterations, SH degree 3."""
+    return TrainConfig(preset="paper")
+
+
+def cpu_fast() -> TrainConfig:
+    """Tuned for 2 CPU cores at ~128 px: light fields, bf16 where it helps, a Gaussian budget."""
+    cfg = TrainConfig(
+        preset="cpu-fast",
+        static_iterations=1500,
+        dynamic_iterations=6000,
+        init_points=5000,
+        sh_degree=1,
+        sh_degree_interval=500,
+        checkpoint_every=1000,
+        densify=DensifyConfig(
+            refine_start=300, refine_stop=4000, refine_every=100, reset_every=1500, max_gaussians=20_000
+        ),
+        deformation=DeformationConfig(depth=4, width=64, skip_layer=2),
+        dynamics=DynamicsConfig(depth=4, width=64, num_frequencies=3),
+        dynamic=DynamicStageConfig(time_growth_steps=1500),
+    )
+    return cfg
+
+
+def tiny() -> TrainConfig:
+    """A few iterations of everything: for tests and smoke runs."""
+    cfg = cpu_fast()
+    cfg.preset = "tiny"
+    cfg.static_iterations, cfg.dynamic_iterations = 2, 2
+    cfg.init_points = 200
+    cfg.densify = DensifyConfig(refine_start=0, refine_every=1, reset_every=0)
+    cfg.dynamic.time_growth_steps = 1
+    return cfg
+
+
+PRESETS = {"paper": paper, "cpu-fast": cpu_fast, "tiny": tiny}
+
+
+def make_config(preset: str = "cpu-fast", **overrides) -> TrainConfig:
+    """A preset's config with top-level fields replaced by ``overrides``."""
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; available: {', '.join(PRESETS)}")
+    return dataclasses.replace(PRESETS[preset](), **overrides)
+
+
+def config_to_dict(cfg) -> dict:
+    def convert(v):
+        if isinstance(v, Path):
+            return str(v)
+        if isinstance(v, dict):
+            return {k: convert(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [convert(x) for x in v]
+        return v
+
+    return convert(dataclasses.asdict(cfg))
+
+
+def config_from_dict(cls, data: dict):
+    """Rebuild a (nested) config dataclass from plain JSON data; unknown keys are an error."""
+    import typing
+
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    names = {f.name for f in dataclasses.fields(cls)}
+    for key, value in data.items():
+        if key not in names:
+            raise ValueError(f"unknown config field {cls.__name__}.{key}")
+        hint = hints[key]
+        if dataclasses.is_dataclass(hint):
+            value = config_from_dict(hint, value)
+        elif hint is Path:
+            value = Path(value)
+        elif isinstance(value, list) and "tuple" in str(hint).lower():
+            value = _as_tuple(value)
+        kwargs[key] = value
+    return cls(**kwargs)
+
+
+def _as_tuple(value):
+    return tuple(_as_tuple(v) for v in value) if isinstance(value, list) else value
+
+
+def save_config(cfg: TrainConfig, path: Path) -> None:
+    from .utils import atomic_write_text
+
+    atomic_write_text(path, json.dumps(config_to_dict(cfg), indent=2))
+
+
+def load_config(path: Path) -> TrainConfig:
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no config.json here (is this a tracegs run folder?)")
+    return config_from_dict(TrainConfig, json.loads(path.read_text()))

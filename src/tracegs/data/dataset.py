@@ -1,0 +1,77 @@
+"""Training views in memory: images, cameras and times of one split, ready for sampling.
+
+V: views (images), H, W: image size.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from .blender import SceneSplit, load_image, load_scene
+from .cameras import Camera
+
+
+@dataclass
+class View:
+    image: torch.Tensor  # [H, W, 3] float in [0, 1], composited on the scene background
+    camera: Camera
+    time: float
+    camera_id: int | None
+    name: str
+
+
+class ViewDataset:
+    """All images of a split (optionally only times <= ``t_max``), loaded once onto ``device``."""
+
+    def __init__(
+        self,
+        root: str | Path,
+        split: str = "train",
+        downscale: int = 1,
+        t_max: float | None = None,
+        t_min: float | None = None,
+        device: torch.device | str = "cpu",
+    ):
+        self.scene: SceneSplit = load_scene(root, split, downscale)
+        frames = [
+            f
+            for f in self.scene.frames
+            if (t_max is None or f.time <= t_max + 1e-9) and (t_min is None or f.time > t_min + 1e-9)
+        ]
+        self.views = [
+            View(
+                image=load_image(f, self.scene.background).to(device),
+                camera=f.camera.to(device),
+                time=f.time,
+                camera_id=f.camera_id,
+                name=f.image_path.stem,
+            )
+            for f in frames
+        ]
+        self.background = torch.tensor(self.scene.background, dtype=torch.float32, device=device)
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+    def __getitem__(self, i: int) -> View:
+        return self.views[i]
+
+    @property
+    def times(self) -> torch.Tensor:
+        return torch.tensor([v.time for v in self.views])
+
+    def camera_centers(self) -> torch.Tensor:
+        return torch.stack([v.camera.center.cpu() for v in self.views])
+
+
+def frame_interval(times: list[float] | torch.Tensor, fps: float | None = None) -> float:
+    """Time between consecutive frames: 1 / fps if known, else the median gap of the distinct times."""
+    if fps:
+        return 1.0 / fps
+    t = torch.unique(torch.as_tensor(times, dtype=torch.float64))
+    if len(t) < 2:
+        return 1.0
+    return float(torch.median(t[1:] - t[:-1]))

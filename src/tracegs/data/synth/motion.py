@@ -1,0 +1,135 @@
+"""Closed-form rigid motion of the synthetic parts, and its ground-truth file ``gt/motion.json``.
+
+Each part moves by one formula with constant angular and linear acceleration (the translation-rotation
+dynamics TRACE learns), evaluated exactly at any time, including t > 1 for extrapolation:
+
+    theta(t) = w t + 1/2 alpha t^2                       (angle about the fixed unit ``axis``)
+    x(t)     = R(axis, theta(t)) (x0 - pivot) + pivot + v t + 1/2 a t^2
+
+x0 is a point of the part in the rest pose (t = 0), so every transform is the identity at t = 0.
+The rotation is about a line through ``pivot`` fixed in the part, which the translation carries
+along (a door on a drifting satellite, a ball spinning about its own moving centre).
+
+# T: times, P: parts
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+FORMULA = "theta(t) = w*t + alpha*t^2/2; x(t) = R(axis, theta(t)) (x0 - pivot) + pivot + v*t + a*t^2/2"
+
+
+@dataclass(frozen=True)
+class RigidMotion:
+    """Parameters of one part's closed-form motion; units are scene units and radians per unit t."""
+
+    kind: str = "static"
+    """Label only: static, rotation, translation, rotation+translation, projectile."""
+    axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    """Unit rotation axis (right-handed), in world coordinates of the rest pose."""
+    pivot: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """A point on the rotation axis at t = 0; it moves with the part's translation."""
+    angular_velocity: float = 0.0
+    """w: angular velocity about ``axis`` at t = 0."""
+    angular_acceleration: float = 0.0
+    """alpha: constant angular acceleration about ``axis``."""
+    linear_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """v: velocity of the pivot at t = 0."""
+    linear_acceleration: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """a: constant acceleration of the pivot (gravity for a projectile)."""
+
+    def __post_init__(self):
+        n = np.linalg.norm(self.axis)
+        if not np.isfinite(n) or n < 1e-9:
+            raise ValueError(f"rotation axis must be a non-zero vector, got {self.axis}")
+        object.__setattr__(self, "axis", tuple(float(x) / n for x in self.axis))
+
+
+def rotation_angle(motion: RigidMotion, t: np.ndarray) -> np.ndarray:
+    """theta(t) = w t + alpha t^2 / 2, same shape as ``t``."""
+    t = np.asarray(t, dtype=np.float64)
+    return motion.angular_velocity * t + 0.5 * motion.angular_acceleration * t**2
+
+
+def pivot_displacement(motion: RigidMotion, t: np.ndarray) -> np.ndarray:
+    """[..., 3] v t + a t^2 / 2."""
+    t = np.asarray(t, dtype=np.float64)[..., None]
+    return np.asarray(motion.linear_velocity) * t + 0.5 * np.asarray(motion.linear_acceleration) * t**2
+
+
+def axis_angle_to_matrix(axis, angle: np.ndarray) -> np.ndarray:
+    """[..., 3, 3] Rodrigues rotation about the unit ``axis`` by ``angle`` [...]."""
+    a = np.asarray(axis, dtype=np.float64)
+    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    angle = np.asarray(angle, dtype=np.float64)[..., None, None]
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
+
+
+def motion_transform(motion: RigidMotion, t) -> np.ndarray:
+    """[..., 4, 4] rest-pose -> world rigid transform of the part at times ``t`` [...]."""
+    t = np.asarray(t, dtype=np.float64)
+    R = axis_angle_to_matrix(motion.axis, rotation_angle(motion, t))
+    pivot = np.asarray(motion.pivot, dtype=np.float64)
+    out = np.zeros((*t.shape, 4, 4))
+    out[..., :3, :3] = R
+    out[..., :3, 3] = pivot - R @ pivot + pivot_displacement(motion, t)
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def transforms_at(motions: list[RigidMotion], t) -> np.ndarray:
+    """[P, 4, 4] for a scalar ``t``, [T, P, 4, 4] for times [T]."""
+    return np.stack([motion_transform(m, t) for m in motions], axis=-3)
+
+
+def motion_record(name: str, part_id: int, motion: RigidMotion) -> dict:
+    """One part's entry in ``gt/motion.json``."""
+    return {"name": name, "id": part_id, "type": motion.kind, **_plain(asdict(motion))}
+
+
+def _plain(d: dict) -> dict:
+    d = {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
+    d.pop("kind")
+    return d
+
+
+def motion_from_record(record: dict) -> RigidMotion:
+    """Inverse of :func:`motion_record` (unknown keys, such as notes, are ignored)."""
+    fields = RigidMotion.__dataclass_fields__
+    kwargs = {k: (tuple(v) if isinstance(v, list) else v) for k, v in record.items() if k in fields}
+    return RigidMotion(kind=record.get("type", "static"), **kwargs)
+
+
+def load_motions(source) -> list[RigidMotion]:
+    """Motions ordered by part id from an output folder, its ``gt`` folder, a ``motion.json`` path or
+    the parsed json dict."""
+    if isinstance(source, dict):
+        data = source
+    else:
+        path = Path(source)
+        for candidate in (path, path / "gt" / "motion.json", path / "motion.json"):
+            if candidate.is_file():
+                path = candidate
+                break
+        else:
+            raise FileNotFoundError(f"no motion.json at {path} (nor {path / 'gt' / 'motion.json'})")
+        data = json.loads(path.read_text())
+    parts = sorted(data["parts"], key=lambda p: p["id"])
+    if [p["id"] for p in parts] != list(range(1, len(parts) + 1)):
+        raise ValueError("motion.json part ids must be 1..P")
+    return [motion_from_record(p) for p in parts]
+
+
+def part_transforms(out_or_motion_json, t) -> np.ndarray:
+    """Rest-pose -> world rigid transform of every part at time(s) ``t`` from the closed form.
+
+    ``out_or_motion_json``: a ``tracegs synth`` output folder, its ``gt/motion.json`` (path or parsed
+    dict). ``t``: a float -> [P, 4, 4], or an array [T] -> [T, P, 4, 4]; any t, also beyond 1.
+    Index p holds the part whose mask id is p + 1 (0 is the background).
+    """
+    return transforms_at(load_motions(out_or_motion_json), t)

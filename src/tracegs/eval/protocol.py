@@ -1,0 +1,127 @@
+"""The evaluation protocol of TRACE / NVFi: interpolation and extrapolation splits, and their metrics.
+
+interpolation = held-out (val) cameras at t <= t_train_end; extrapolation = every camera of every
+split at t > t_train_end. Checkpoints and settings are never chosen on these frames.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from pathlib import Path
+
+import torch
+
+from ..data.blender import Frame, available_splits, load_image, load_scene
+from ..train.trainer import load_run
+from ..utils import atomic_write_image
+from .metrics import mae_psnr, mse, psnr, ssim
+
+
+def split_frames(data: Path, t_train_end: float, downscale: int = 1) -> dict[str, list[Frame]]:
+    """Frames of the interpolation and extrapolation splits (deduplicated by image path)."""
+    interpolation, extrapolation, seen = [], [], set()
+    for split in available_splits(data):
+        for f in load_scene(data, split, downscale).frames:
+            if f.image_path in seen:
+                continue
+            seen.add(f.image_path)
+            if f.time > t_train_end + 1e-9:
+                extrapolation.append(f)
+            elif split == "val":
+                interpolation.append(f)
+    return {"interpolation": interpolation, "extrapolation": extrapolation}
+
+
+def _aggregate(records: list[dict], with_lpips: bool) -> dict:
+    if not records:
+        return {"frames": 0}
+    out = {
+        "psnr": sum(r["psnr"] for r in records) / len(records),
+        "mae_psnr": mae_psnr([r["mse"] for r in records]),
+        "ssim": sum(r["ssim"] for r in records) / len(records),
+        "frames": len(records),
+    }
+    if with_lpips:
+        for key in ("lpips_vgg", "lpips_alex"):
+            out[key] = sum(r[key] for r in records) / len(records)
+    return out
+
+
+@torch.no_grad()
+def evaluate_run(
+    run: Path,
+    data: Path | None = None,
+    half_res: bool = False,
+    with_lpips: bool = True,
+    save_images: bool = True,
+    device: str = "auto",
+) -> dict:
+    """Render both splits of a trained run and score them (schema in docs/EVALUATION.md)."""
+    run = Path(run)
+    model, cfg, meta = load_run(run, device)
+    data = Path(data or cfg.data)
+    scene = load_scene(data, "train", cfg.downscale)
+    t_end = cfg.t_train_end if cfg.t_train_end is not None else scene.t_train_end
+    t_end = meta["t_max"] if t_end is None else t_end
+    dev = model.aabb.device
+    background = torch.tensor(scene.background, device=dev)
+    lpips_fn = None
+    if with_lpips:
+        from .lpips import lpips as lpips_fn
+    result: dict = {}
+    for split, frames in split_frames(data, t_end, cfg.downscale).items():
+        by_time: dict[float, list[Frame]] = defaultdict(list)
+        for f in frames:
+            by_time[f.time].append(f)
+        records = []
+        for t in sorted(by_time):
+            state = model.state_at(t, meta["t_max"])
+            for f in by_time[t]:
+                cam = f.camera.to(dev)
+                pred = model.render(state, cam, cfg.sh_degree, background).image.clamp(0, 1)
+                gt = load_image(f, scene.background).to(dev)
+                if half_res:
+                    pred, gt = (
+                        torch.nn.functional.avg_pool2d(x.permute(2, 0, 1)[None], 2)[0].permute(1, 2, 0)
+                        for x in (pred, gt)
+                    )
+                rec = {
+                    "t": t,
+                    "mse": float(mse(pred, gt)),
+                    "psnr": float(psnr(pred, gt)),
+                    "ssim": float(ssim(pred, gt)),
+                }
+                if lpips_fn is not None:
+                    rec["lpips_vgg"] = float(lpips_fn(pred, gt, net="vgg"))
+                    rec["lpips_alex"] = float(lpips_fn(pred, gt, net="alex"))
+                records.append(rec)
+                if save_images:
+                    atomic_write_image(run / "eval" / split / f"{f.image_path.stem}.png", pred)
+        summary = _aggregate(records, lpips_fn is not None)
+        if split == "extrapolation":
+            summary["per_time"] = _per_time(records, lpips_fn is not None)
+        result[split] = summary
+    result.update(
+        method=cfg.method,
+        preset=cfg.preset,
+        scene=str(data),
+        t_train_end=t_end,
+        train_seconds=meta["train_seconds"],
+        iterations=meta["step"],
+        gaussians=int(model.gaussians["means"].shape[0]),
+    )
+    return result
+
+
+def _per_time(records: list[dict], with_lpips: bool) -> list[dict]:
+    groups: dict[float, list[dict]] = defaultdict(list)
+    for r in records:
+        groups[r["t"]].append(r)
+    rows = []
+    for t in sorted(groups):
+        g = groups[t]
+        row = {"t": t, "psnr": mae_psnr([r["mse"] for r in g]), "ssim": sum(r["ssim"] for r in g) / len(g)}
+        if with_lpips:
+            row["lpips_vgg"] = sum(r["lpips_vgg"] for r in g) / len(g)
+        rows.append(row)
+    return rows

@@ -1,0 +1,105 @@
+"""Render a trained run: one image at any time and camera, or a video sweeping camera and time."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..data.blender import load_scene
+from ..data.cameras import Camera, look_at_viewmat
+from ..train.trainer import load_run
+from ..utils import atomic_write_image
+
+
+@torch.no_grad()
+def render_at(model, t: float, t_max: float, camera: Camera, background: torch.Tensor) -> torch.Tensor:
+    """Image [H, W, 3] of the scene at time ``t`` (extrapolated past ``t_max``) seen by ``camera``."""
+    state = model.state_at(t, t_max)
+    return model.render(state, camera, model.cfg.sh_degree, background).image.clamp(0, 1)
+
+
+def orbit_camera(reference: list[Camera], azimuth_deg: float, elevation_deg: float | None = None) -> Camera:
+    """A camera on the training cameras' sphere, looking at their common target, at the given azimuth."""
+    centers = torch.stack([c.center.cpu() for c in reference])
+    target = torch.zeros(3)
+    radius = float(centers.norm(dim=-1).mean())
+    # "up" = the mean of the cameras' up directions (OpenCV: -y axis of each camera in world coordinates)
+    up = torch.nn.functional.normalize(
+        -torch.stack([c.viewmat[1, :3].cpu() for c in reference]).mean(0), dim=0
+    )
+    if elevation_deg is None:
+        elevation_deg = math.degrees(
+            math.asin(float((centers / centers.norm(dim=-1, keepdim=True) @ up).mean()))
+        )
+    # an orthonormal frame around "up"
+    a = torch.tensor([1.0, 0.0, 0.0]) if abs(float(up[0])) < 0.9 else torch.tensor([0.0, 1.0, 0.0])
+    e1 = torch.nn.functional.normalize(a - (a @ up) * up, dim=0)
+    e2 = torch.linalg.cross(up, e1)
+    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+    eye = radius * (math.cos(el) * (math.cos(az) * e1 + math.sin(az) * e2) + math.sin(el) * up)
+    ref = reference[0]
+    return Camera(look_at_viewmat(eye, target, up), ref.K.cpu(), ref.width, ref.height)
+
+
+def pick_camera(data: Path, spec: str, downscale: int = 1) -> Camera:
+    """``SPLIT:INDEX`` of a dataset camera, or ``orbit:AZIMUTH_DEG``."""
+    kind, _, value = spec.partition(":")
+    if kind == "orbit":
+        cams = [f.camera for f in load_scene(data, "train", downscale).frames]
+        return orbit_camera(cams, float(value or 0))
+    frames = load_scene(data, kind, downscale).frames
+    index = int(value or 0)
+    if not 0 <= index < len(frames):
+        raise ValueError(f"camera {spec!r}: split {kind!r} has {len(frames)} frames")
+    return frames[index].camera
+
+
+def render_command(
+    run: Path,
+    out: Path | None = None,
+    time: float = 1.0,
+    camera: str = "test:0",
+    video: bool = False,
+    t_end: float = 1.5,
+    frames: int = 90,
+    data: Path | None = None,
+    device: str = "auto",
+) -> Path:
+    model, cfg, meta = load_run(run, device)
+    data = Path(data or cfg.data)
+    background = torch.tensor(load_scene(data, "train").background, device=model.aabb.device)
+    if not video:
+        cam = pick_camera(data, camera, cfg.downscale).to(model.aabb.device)
+        image = render_at(model, time, meta["t_max"], cam, background)
+        out = Path(out or Path(run) / "renders" / f"{camera.replace(':', '_')}_t{time:.3f}.png")
+        return atomic_write_image(out, image)
+    out = Path(out or Path(run) / "renders" / "sweep.mp4")
+    return render_sweep_video(model, meta["t_max"], data, out, t_end, frames, background, cfg.downscale)
+
+
+def render_sweep_video(model, t_max, data, out: Path, t_end, frames, background, downscale=1) -> Path:
+    """A video whose camera orbits once while time runs from 0 to ``t_end``."""
+    import imageio.v2 as imageio
+
+    cams = [f.camera for f in load_scene(data, "train", downscale).frames]
+    images = []
+    for k in range(frames):
+        t = t_end * k / max(frames - 1, 1)
+        cam = orbit_camera(cams, 360.0 * k / frames).to(model.aabb.device)
+        img = render_at(model, t, t_max, cam, background)
+        images.append((img.cpu().numpy() * 255 + 0.5).astype(np.uint8))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.stem}.tmp{out.suffix}")
+    try:
+        imageio.mimwrite(
+            tmp, images, fps=24, macro_block_size=1
+        ) if out.suffix == ".mp4" else imageio.mimwrite(tmp, images, duration=1 / 24)
+    except Exception:  # no ffmpeg: fall back to a GIF next to the requested path
+        out = out.with_suffix(".gif")
+        tmp = out.with_name(f".{out.stem}.tmp.gif")
+        imageio.mimwrite(tmp, images, duration=1 / 24)
+    tmp.replace(out)
+    return out

@@ -1,0 +1,156 @@
+"""The auxiliary deformation field f_defo(x0, t) -> (dx, dq, dlog_s) (Section 3.1, Eq. 2, Appendix).
+
+N: Gaussians, W: hidden width, E: encoded input channels.
+Two fields behind one interface, ``forward(x0 [N, 3], t) -> (dx [N, 3], dq [N, 4], dlog_s [N, 3])``:
+the Deformable-3DGS MLP (TRACE's default) and the 4DGS HexPlane (TRACE_4dgs). Both end in the same
+zero-initialised heads, so a new field is exactly "no motion": dx = 0, dq = (1, 0, 0, 0), dlog_s = 0.
+Zero heads do not stop training: the heads' own gradients (hidden features x upstream gradient) are
+non-zero, and once the first optimiser step has made them non-zero the gradient reaches every layer.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+from torch import nn
+
+from tracegs.models.encoding import encoding_dim, positional_encoding, time_column
+from tracegs.models.hexplane import HexPlane, HexPlaneConfig
+from tracegs.physics.so3 import quat_multiply, quat_normalize
+
+DeformationOutput = tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # dx [N, 3], dq [N, 4], dlog_s [N, 3]
+
+
+@dataclass
+class DeformationConfig:
+    """The deformation field f_defo (defaults: the paper's Appendix and METHOD.md)."""
+
+    kind: str = "mlp"
+    """"mlp" (Deformable 3DGS, TRACE) or "hexplane" (4DGS, TRACE_4dgs)."""
+    depth: int = 8
+    """Hidden layers of the MLP, each followed by a ReLU."""
+    width: int = 256
+    """Hidden width of the MLP."""
+    skip_layer: int | None = 4
+    """After this hidden layer (0-based) the encoded input is concatenated again (Deformable 3DGS:
+    depth // 2); None for no skip."""
+    position_frequencies: int = 8
+    """Frequencies of the positional encoding of x0 (TRACE's Appendix: 8; Deformable 3DGS: 10)."""
+    time_frequencies: int = 6
+    """Frequencies of the encoding of t (Deformable 3DGS on synthetic scenes: 6; Appendix: 5)."""
+    hexplane: HexPlaneConfig = field(default_factory=HexPlaneConfig)
+    """Grid and decoder of the "hexplane" kind."""
+
+
+class DeformationHeads(nn.Module):
+    """Zero-initialised linear heads W -> (dx 3, dq 4, dlog_s 3), the identity quaternion added to dq.
+
+    Outputs are cast to ``dtype`` (the inputs' dtype), so that under bf16 autocast the consumers get
+    float32.
+    """
+
+    def __init__(self, width: int):
+        super().__init__()
+        self.translation = nn.Linear(width, 3)
+        self.rotation = nn.Linear(width, 4)
+        self.log_scale = nn.Linear(width, 3)
+        for head in (self.translation, self.rotation, self.log_scale):
+            nn.init.zeros_(head.weight)
+            nn.init.zeros_(head.bias)
+
+    def forward(self, h: torch.Tensor, dtype: torch.dtype) -> DeformationOutput:
+        identity = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=dtype, device=h.device)
+        dq = self.rotation(h).to(dtype) + identity
+        return self.translation(h).to(dtype), dq, self.log_scale(h).to(dtype)
+
+
+class DeformationField(nn.Module):
+    """Deformable-3DGS MLP: ``(PE(x0), PE(t))`` -> depth x width ReLU MLP with one skip -> heads."""
+
+    def __init__(self, cfg: DeformationConfig):
+        super().__init__()
+        self.cfg = cfg
+        in_dim = encoding_dim(3, cfg.position_frequencies) + encoding_dim(1, cfg.time_frequencies)
+        layers = []
+        for i in range(cfg.depth):
+            fan_in = in_dim if i == 0 else cfg.width
+            if cfg.skip_layer is not None and i == cfg.skip_layer + 1:
+                fan_in += in_dim
+            layers.append(nn.Linear(fan_in, cfg.width))
+        self.layers = nn.ModuleList(layers)
+        self.heads = DeformationHeads(cfg.width)
+
+    def encode(self, x0: torch.Tensor, t: float | torch.Tensor) -> torch.Tensor:
+        """``[PE(x0), PE(t)]`` [N, E]."""
+        t = time_column(t, x0)
+        return torch.cat(
+            [
+                positional_encoding(x0, self.cfg.position_frequencies),
+                positional_encoding(t, self.cfg.time_frequencies),
+            ],
+            dim=-1,
+        )
+
+    def forward(self, x0: torch.Tensor, t: float | torch.Tensor) -> DeformationOutput:
+        """``(dx, dq, dlog_s)`` of the Gaussians at canonical positions ``x0`` [N, 3] at time ``t``."""
+        inputs = self.encode(x0, t)
+        h = inputs
+        for i, layer in enumerate(self.layers):
+            h = torch.relu(layer(h))
+            if i == self.cfg.skip_layer:
+                h = torch.cat([inputs.to(h.dtype), h], dim=-1)
+        return self.heads(h, x0.dtype)
+
+
+class HexPlaneDeformationField(nn.Module):
+    """4DGS deformation field: HexPlane features [N, S C] -> small ReLU MLP -> the same heads."""
+
+    def __init__(self, cfg: DeformationConfig, aabb: torch.Tensor | None = None):
+        super().__init__()
+        self.cfg = cfg
+        self.grid = HexPlane(cfg.hexplane, aabb)
+        width = cfg.hexplane.decoder_width
+        self.layers = nn.ModuleList(
+            [
+                nn.Linear(self.grid.out_dim if i == 0 else width, width)
+                for i in range(cfg.hexplane.decoder_depth)
+            ]
+        )
+        self.heads = DeformationHeads(width)
+
+    def forward(self, x0: torch.Tensor, t: float | torch.Tensor) -> DeformationOutput:
+        """``(dx, dq, dlog_s)`` of the Gaussians at canonical positions ``x0`` [N, 3] at time ``t``."""
+        h = self.grid(x0, time_column(t, x0))
+        for layer in self.layers:
+            h = torch.relu(layer(h))
+        return self.heads(h, x0.dtype)
+
+    def regularization_losses(self) -> dict[str, torch.Tensor]:
+        """The grid's weighted regularisers (plane TV, time smoothness, time L1)."""
+        return self.grid.regularization_losses()
+
+
+def make_deformation_field(cfg: DeformationConfig, aabb: torch.Tensor | None = None) -> nn.Module:
+    """The field named by ``cfg.kind``; ``aabb`` [2, 3] (scene bounds) is used by the HexPlane."""
+    if cfg.kind == "mlp":
+        return DeformationField(cfg)
+    if cfg.kind == "hexplane":
+        return HexPlaneDeformationField(cfg, aabb)
+    raise ValueError(f"unknown deformation field kind {cfg.kind!r}; expected 'mlp' or 'hexplane'")
+
+
+def apply_deformation(
+    x0: torch.Tensor,  # [N, 3] canonical means
+    q0: torch.Tensor,  # [N, 4] canonical quaternions (wxyz)
+    log_s0: torch.Tensor,  # [N, 3] canonical log-scales
+    dx: torch.Tensor,  # [N, 3]
+    dq: torch.Tensor,  # [N, 4] unnormalised
+    dlog_s: torch.Tensor,  # [N, 3]
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Gaussians at time t (Eq. 2 / Appendix): ``x0 + dx``, ``normalize(dq) o q0``, ``log_s0 + dlog_s``.
+
+    The returned quaternion has the norm of ``q0`` (unit if ``q0`` is); scales stay in log space
+    (``s_t = exp(log_s0 + dlog_s) = s0 * exp(dlog_s)``).
+    """
+    return x0 + dx, quat_multiply(quat_normalize(dq), q0), log_s0 + dlog_s

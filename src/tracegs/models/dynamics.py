@@ -1,0 +1,130 @@
+"""The translation-rotation dynamics field f_trd(x, t) (Section 3.2, Eq. 3-6, Appendix).
+
+N: particles (Gaussians), W: hidden width, E: encoded input channels.
+An MLP maps the encoded 4-vector (x, y, z, t) to the per-particle dynamics parameters of
+``physics/integrate.py``: equivalent centre velocity v_bar, angular velocity w, and (order >= 2)
+accelerations a = a_raw |a_raw| / scale (element-wise, METHOD.md), (order 3) jerks scaled the same way.
+
+Initialisation. The velocity outputs (and the explicit centre) start at exactly zero (zero weights and
+biases), so a new field is "no motion" in velocity; their heads still receive gradients (hidden
+features x upstream gradient) and after one optimiser step the gradient reaches every layer. The
+acceleration outputs can NOT start at zero: d(a_raw |a_raw|)/d(a_raw) = 2 |a_raw| / scale vanishes
+at a_raw = 0, so a zero-initialised acceleration head would receive no gradient, ever. They get a
+small random init instead (``acceleration_init_std``), i.e. accelerations of order 1e-4 at start.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from tracegs.models.encoding import encoding_dim, positional_encoding, time_column
+from tracegs.physics.integrate import DynamicsParams, equivalent_from_center
+
+ACTIVATIONS = {"silu": nn.SiLU, "relu": nn.ReLU}
+
+
+@dataclass
+class DynamicsConfig:
+    """The dynamics field f_trd (defaults: METHOD.md)."""
+
+    depth: int = 8
+    """Hidden layers of the MLP (Appendix: 8 x 256)."""
+    width: int = 256
+    """Hidden width of the MLP."""
+    num_frequencies: int = 6
+    """Frequencies L of the encoding [u, sin(2^k u), cos(2^k u)] of the 4-vector (x, y, z, t)."""
+    activation: str = "silu"
+    """Hidden activation: "silu" (authors' code) or "relu" (the paper's Appendix)."""
+    order: int = 2
+    """1: velocities only (accelerations zero); 2: + constant accelerations (the paper);
+    3: + jerk (accelerations evolve linearly)."""
+    equivalent: bool = True
+    """Learn the equivalent centre velocity/acceleration (Eq. 5). False: learn the centre P_c, its
+    velocity and acceleration explicitly and convert (the "no equivalence" ablation)."""
+    acceleration_scale: float = 10.0
+    """a = a_raw * |a_raw| / acceleration_scale, element-wise, for accelerations and jerks."""
+    acceleration_init_std: float = 1e-2
+    """Std of the normal init of the raw-acceleration (and jerk) head weights; must be > 0 for them
+    to learn (see the module docstring)."""
+
+    @classmethod
+    def light(cls, **overrides) -> DynamicsConfig:
+        """The light preset of METHOD.md: L = 3, 6 x 128."""
+        return cls(**{"depth": 6, "width": 128, "num_frequencies": 3, **overrides})
+
+    def output_slices(self) -> dict[str, slice]:
+        """Named slices of the head's raw outputs, in order."""
+        names = ["velocity", "angular_velocity"]
+        if not self.equivalent:
+            names = ["center", "center_velocity", "angular_velocity"]
+        if self.order >= 2:
+            names += ["acceleration", "angular_acceleration"]
+        if self.order >= 3:
+            names += ["jerk", "angular_jerk"]
+        return {name: slice(3 * i, 3 * i + 3) for i, name in enumerate(names)}
+
+
+def scale_acceleration(raw: torch.Tensor, scale: float) -> torch.Tensor:
+    """``raw * |raw| / scale`` (METHOD.md): signed square, small near zero, large values reachable."""
+    return raw * raw.abs() / scale
+
+
+class DynamicsField(nn.Module):
+    """f_trd: ``forward(x [N, 3], t) -> DynamicsParams`` (Eq. 6), in the dtype of ``x``."""
+
+    def __init__(self, cfg: DynamicsConfig):
+        super().__init__()
+        if cfg.order not in (1, 2, 3):
+            raise ValueError(f"order must be 1, 2 or 3, got {cfg.order}")
+        if cfg.activation not in ACTIVATIONS:
+            raise ValueError(f"activation must be one of {sorted(ACTIVATIONS)}, got {cfg.activation!r}")
+        self.cfg = cfg
+        self.slices = cfg.output_slices()
+        in_dim = encoding_dim(4, cfg.num_frequencies)
+        layers: list[nn.Module] = []
+        for i in range(cfg.depth):
+            layers += [nn.Linear(in_dim if i == 0 else cfg.width, cfg.width), ACTIVATIONS[cfg.activation]()]
+        self.mlp = nn.Sequential(*layers)
+        self.head = nn.Linear(cfg.width, 3 * len(self.slices))
+        self._init_head()
+
+    @torch.no_grad()
+    def _init_head(self) -> None:
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
+        for name in ("acceleration", "angular_acceleration", "jerk", "angular_jerk"):
+            if name in self.slices:
+                nn.init.normal_(self.head.weight[self.slices[name]], std=self.cfg.acceleration_init_std)
+
+    def forward(self, x: torch.Tensor, t: float | torch.Tensor) -> DynamicsParams:
+        """Dynamics parameters of particles at positions ``x`` [N, 3] at time ``t`` (float or [N, 1])."""
+        u = torch.cat([x, time_column(t, x)], dim=-1)  # [N, 4]
+        raw = self.head(self.mlp(positional_encoding(u, self.cfg.num_frequencies))).to(x.dtype)
+        out = {name: raw[:, s] for name, s in self.slices.items()}
+        for name in ("acceleration", "angular_acceleration", "jerk", "angular_jerk"):
+            if name in out:
+                out[name] = scale_acceleration(out[name], self.cfg.acceleration_scale)
+        zero = torch.zeros_like(x)
+        acceleration = out.get("acceleration", zero)
+        angular_acceleration = out.get("angular_acceleration", zero)
+        if self.cfg.equivalent:
+            return DynamicsParams(
+                out["velocity"],
+                out["angular_velocity"],
+                acceleration,
+                angular_acceleration,
+                out.get("jerk"),
+                out.get("angular_jerk"),
+            )
+        return equivalent_from_center(
+            out["center"],
+            out["center_velocity"],
+            acceleration,
+            out["angular_velocity"],
+            angular_acceleration,
+            out.get("jerk"),
+            out.get("angular_jerk"),
+        )

@@ -1,0 +1,38 @@
+"""Input encodings shared by the deformation field and the dynamics field.
+
+N: points, D: input channels, L: frequencies.
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+def encoding_dim(in_dim: int, num_frequencies: int, include_input: bool = True) -> int:
+    """Channels of ``positional_encoding`` for ``in_dim`` inputs: ``D (1 + 2L)`` (or ``2 D L``)."""
+    return in_dim * (2 * num_frequencies + int(include_input))
+
+
+def positional_encoding(u: torch.Tensor, num_frequencies: int, include_input: bool = True) -> torch.Tensor:
+    """``[u, sin(2^0 u), cos(2^0 u), ..., sin(2^(L-1) u), cos(2^(L-1) u)]`` [..., D (1 + 2L)].
+
+    No pi factor (METHOD.md, as the authors' and Deformable 3DGS's embedder); the channel order is
+    the Deformable 3DGS one (frequency-major, then sin/cos, then input channel).
+    """
+    parts = [u] if include_input else []
+    if num_frequencies > 0:
+        freqs = 2.0 ** torch.arange(num_frequencies, dtype=u.dtype, device=u.device)  # [L]
+        angles = u[..., None, :] * freqs[:, None]  # [..., L, D]
+        sincos = torch.stack([torch.sin(angles), torch.cos(angles)], dim=-2)  # [..., L, 2, D]
+        parts.append(sincos.flatten(-3))
+    return torch.cat(parts, dim=-1)
+
+
+def time_column(t: float | torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """The time(s) ``t`` as a column [N, 1] with the device and dtype of ``like`` [N, ...].
+
+    ``t`` may be a Python number, a 0-d / [1] tensor (one time for all points), or [N] / [N, 1].
+    """
+    n = like.shape[0]
+    t = torch.as_tensor(t, dtype=like.dtype, device=like.device)
+    return t.reshape(-1, 1).expand(n, 1) if t.numel() == 1 else t.reshape(n, 1)

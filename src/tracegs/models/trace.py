@@ -1,0 +1,159 @@
+"""TRACE: canonical Gaussians + auxiliary deformation field f_defo + translation-rotation dynamics f_trd.
+
+This module says how the Gaussians at a time t are made, for training (Section 3.3: deform to t',
+transport t' -> t with the learned physics, Alg. 1) and for rendering any time, past or future
+(deform up to t_max, then chain integration steps). The DefGS baseline is the same model without
+f_trd; "static" is plain 3DGS.
+N: Gaussians.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+
+import torch
+from torch import nn
+
+from ..physics.integrate import integrate, step
+from ..physics.so3 import quat_normalize
+from ..render import rasterize
+from .deformation import apply_deformation, make_deformation_field
+from .dynamics import DynamicsField
+
+
+class TraceModel(nn.Module):
+    """Gaussians (``self.gaussians``), and the fields the method needs (``deformation``, ``dynamics``)."""
+
+    def __init__(self, cfg, gaussians: nn.ParameterDict, aabb: torch.Tensor, frame_interval: float):
+        super().__init__()
+        self.cfg = cfg
+        self.gaussians = gaussians
+        self.register_buffer("aabb", aabb.clone().float())
+        self.register_buffer("frame_interval", torch.tensor(float(frame_interval)))
+        uses_deformation = cfg.method == "defgs" or (cfg.method == "trace" and cfg.dynamic.use_deformation)
+        self.deformation = make_deformation_field(cfg.deformation, aabb) if uses_deformation else None
+        self.dynamics = DynamicsField(cfg.dynamics) if cfg.method == "trace" else None
+
+    # ----- fields -----------------------------------------------------------------------------
+    def field_parameters(self) -> list[nn.Parameter]:
+        return [p for m in (self.deformation, self.dynamics) if m is not None for p in m.parameters()]
+
+    def autocast(self):
+        """bf16 autocast for the fields on CPU when configured (AMX makes the MLPs ~3x faster)."""
+        if self.cfg.bf16 and self.aabb.device.type == "cpu":
+            return torch.autocast("cpu", dtype=torch.bfloat16)
+        return contextlib.nullcontext()
+
+    def deform(self, t: float) -> dict[str, torch.Tensor]:
+        """Eq. 2: canonical Gaussians moved to time t by f_defo (identity if there is no f_defo)."""
+        g = self.gaussians
+        if self.deformation is None:
+            return {"means": g["means"], "quats": g["quats"], "scales": g["scales"]}
+        with self.autocast():
+            dx, dq, dlog_s = self.deformation(g["means"], t)
+        means, quats, log_scales = apply_deformation(
+            g["means"], g["quats"], g["scales"], dx.float(), dq.float(), dlog_s.float()
+        )
+        return {"means": means, "quats": quats, "scales": log_scales}
+
+    def query_dynamics(self, means: torch.Tensor, t: float):
+        """Eq. 6: the learned physical parameters of every particle at time t (float32)."""
+        with self.autocast():
+            params = self.dynamics(means, t)
+        return type(params)(*[None if p is None else p.float() for p in params])
+
+    # ----- the Gaussians of a training step -----------------------------------------------------
+    def training_state(self, t_prime: float, t: float, physics: bool = True) -> dict[str, torch.Tensor]:
+        """Gaussians for rendering frame ``t`` in stage 2 (METHOD.md, Training).
+
+        TRACE: deform to t', query f_trd at (x_t', t'), integrate t' -> t, and pass f_defo(t)'s gradient
+        straight through to the rendered position. DefGS (or ``physics=False``): f_defo(t) alone.
+        """
+        dyn = self.cfg.dynamic
+        if self.dynamics is None or not physics:
+            return self.deform(t)
+        if self.deformation is None:  # ablation "no f_defo": dynamics carry the canonical Gaussians from 0
+            t_prime = 0.0
+        start = self.deform(t_prime)
+        query_time = t_prime if dyn.physics_derivation else t
+        params = self.query_dynamics(start["means"], query_time)
+        means, quats = integrate(
+            start["means"], start["quats"], params, t - t_prime, self.dt_max, method=dyn.integrator
+        )[:2]
+        if dyn.straight_through and self.deformation is not None:
+            target = self.deform(t)["means"]
+            means = means + (target - target.detach())
+        return {"means": means, "quats": quats, "scales": start["scales"]}
+
+    # ----- any time, past or future -----------------------------------------------------------
+    @torch.no_grad()
+    def state_at(self, t: float, t_max: float) -> dict[str, torch.Tensor]:
+        """Gaussians at time ``t``: f_defo up to ``t_max``, then the learned physics into the future."""
+        g = self.gaussians
+        if self.cfg.method == "static":
+            return {"means": g["means"], "quats": g["quats"], "scales": g["scales"]}
+        if self.dynamics is None or t <= t_max:
+            return self.deform(t) if self.deformation is not None else self._physics_from(0.0, t)
+        return self._physics_from(t_max, t)
+
+    def _physics_from(self, t0: float, t: float) -> dict[str, torch.Tensor]:
+        """Deform to ``t0`` and chain integration steps of at most ``dt_max`` to ``t`` (forward or back)."""
+        dyn = self.cfg.dynamic
+        state = self.deform(t0)
+        means, quats = state["means"], quat_normalize(state["quats"])
+        if dyn.freeze_static_threshold > 0 and self.deformation is not None:
+            moving = self.moving_mask(t0, dyn.freeze_static_threshold)
+        else:
+            moving = None
+        span = t - t0
+        n = max(1, math.ceil(abs(span) / self.dt_max - 1e-9))
+        h = span / n
+        new_means, new_quats = means, quats
+        if dyn.extrapolation_requery or not dyn.physics_derivation:
+            # Alg. 1 applied progressively: query f_trd at every step's start (or its end, ablation (4)).
+            for k in range(n):
+                s = t0 + k * h
+                params = self.query_dynamics(new_means, s if dyn.physics_derivation else s + h)
+                new_means, new_quats = step(new_means, new_quats, params, h, dyn.integrator)[:2]
+        else:  # query once at t0 and let the constant accelerations evolve the parameters
+            params = self.query_dynamics(means, t0)
+            new_means, new_quats = integrate(means, quats, params, span, self.dt_max, dyn.integrator)[:2]
+        if moving is not None:
+            new_means = torch.where(moving[:, None], new_means, means)
+            new_quats = torch.where(moving[:, None], new_quats, quats)
+        return {"means": new_means, "quats": new_quats, "scales": state["scales"]}
+
+    @torch.no_grad()
+    def moving_mask(self, t_max: float, threshold: float, samples: int = 8) -> torch.Tensor:
+        """Gaussians whose f_defo displacement exceeds ``threshold`` at some training time."""
+        x0 = self.gaussians["means"]
+        moved = torch.zeros(x0.shape[0], dtype=torch.bool, device=x0.device)
+        for k in range(samples + 1):
+            moved |= (self.deform(t_max * k / samples)["means"] - x0).norm(dim=-1) > threshold
+        return moved
+
+    @property
+    def dt_max(self) -> float:
+        """Longest single integration step: one frame interval of the training data."""
+        return float(self.frame_interval)
+
+    # ----- rendering --------------------------------------------------------------------------
+    def render(self, state: dict[str, torch.Tensor], camera, sh_degree: int, background: torch.Tensor):
+        """Rasterise Gaussians whose geometry is ``state`` (means, quats, log-scales) from ``camera``."""
+        g = self.gaussians
+        sh = torch.cat([g["sh0"], g["shN"]], dim=1)
+        return rasterize(
+            state["means"],
+            state["quats"],
+            torch.exp(state["scales"]),
+            torch.sigmoid(g["opacities"]),
+            sh,
+            camera.viewmat,
+            camera.K,
+            camera.width,
+            camera.height,
+            sh_degree=sh_degree,
+            background=background,
+            backend=self.cfg.backend,
+        )

@@ -1,0 +1,206 @@
+"""Rasteriser speed benchmark: every available backend on the same random scenes, side by side.
+
+``run_raster_bench()`` (CLI: ``tracegs bench raster --json FILE``) times forward and
+forward + backward of :func:`tracegs.render.rasterize` for each backend and workload and writes the
+table into docs/BENCHMARKS.md (section "raster"). :func:`random_scene` is also the tests' scene
+generator.
+
+Scenes: N Gaussians uniformly inside a 64-degree pinhole frustum at depths 2..6 (a little beyond
+the image edges too), log-normal world scales around 0.03 (a 1-3 px sigma at 128-256 px), random
+rotations, opacities in [0.1, 0.9], RGB colours; about 15-60 Gaussians overlap a pixel before
+early termination, like a trained 3DGS scene.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import resource
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from ..bench_report import machine_description, markdown_table, update_section
+from .rendering import available_backends, rasterize
+from .sh import num_sh_bases
+
+
+def _rotation(axis_angle: Tensor) -> Tensor:
+    """Rodrigues: [3] axis-angle -> [3, 3]."""
+    theta = axis_angle.norm()
+    k = axis_angle / theta
+    kx = torch.tensor([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]], dtype=axis_angle.dtype)
+    return torch.eye(3, dtype=axis_angle.dtype) + torch.sin(theta) * kx + (1 - torch.cos(theta)) * (kx @ kx)
+
+
+def random_scene(
+    n: int,
+    width: int,
+    height: int,
+    *,
+    seed: int = 0,
+    sh_degree: int | None = None,
+    scale: float = 0.03,
+    frac_behind: float = 0.0,
+    opacity_range: tuple[float, float] = (0.1, 0.9),
+    dtype: torch.dtype = torch.float32,
+) -> dict:
+    """Random Gaussians in front of a rotated, translated pinhole camera.
+
+    Returns the keyword arguments of :func:`tracegs.render.rasterize` (means, quats, scales,
+    opacities, colors, viewmat, K, width, height, sh_degree). ``frac_behind`` of the Gaussians are
+    placed behind the camera.
+    """
+    g = torch.Generator().manual_seed(seed)
+
+    def rand(*shape):
+        return torch.rand(*shape, generator=g, dtype=torch.float64)
+
+    fx = fy = 0.8 * width
+    K = torch.tensor([[fx, 0.0, width / 2], [0.0, fy, height / 2], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    z = 2.0 + 4.0 * rand(n)
+    x = (2 * rand(n) - 1) * 1.2 * z * (width / 2) / fx
+    y = (2 * rand(n) - 1) * 1.2 * z * (height / 2) / fy
+    behind = rand(n) < frac_behind
+    z = torch.where(behind, -(0.2 + 3.0 * rand(n)), z)
+    p_cam = torch.stack([x, y, z], dim=-1)
+
+    R = _rotation(torch.tensor([0.3, -0.5, 0.2], dtype=torch.float64))
+    t = torch.tensor([0.1, -0.2, 0.5], dtype=torch.float64)
+    viewmat = torch.eye(4, dtype=torch.float64)
+    viewmat[:3, :3], viewmat[:3, 3] = R, t
+    means = (p_cam - t) @ R  # world = R^T (p_cam - t)
+
+    quats = torch.randn(n, 4, generator=g, dtype=torch.float64)
+    scales = scale * torch.exp(0.5 * torch.randn(n, 3, generator=g, dtype=torch.float64))
+    lo, hi = opacity_range
+    opacities = lo + (hi - lo) * rand(n)
+    if sh_degree is None:
+        colors = rand(n, 3)
+    else:
+        colors = 0.3 * torch.randn(n, num_sh_bases(sh_degree), 3, generator=g, dtype=torch.float64)
+        colors[:, 0] += 0.5 * rand(n, 3)
+    out = dict(means=means, quats=quats, scales=scales, opacities=opacities, colors=colors, viewmat=viewmat, K=K)
+    out = {k: v.to(dtype) for k, v in out.items()}
+    out.update(width=width, height=height, sh_degree=sh_degree)
+    return out
+
+
+def _peak_rss_mb() -> float:
+    """Peak resident set size of this process so far (MB)."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / (1024 * 1024) if sys.platform == "darwin" else peak / 1024
+
+
+def _time_backend(scene: dict, backend: str, repeats: int, warmup: int) -> dict:
+    params = ("means", "quats", "scales", "opacities", "colors")
+    leaves = {k: scene[k].clone().requires_grad_(True) for k in params}
+    rest = {k: v for k, v in scene.items() if k not in params}
+    weights = torch.rand(scene["height"], scene["width"], 3, generator=torch.Generator().manual_seed(1))
+    rss_before = _peak_rss_mb()
+
+    def fwd():
+        with torch.no_grad():
+            rasterize(**leaves, **rest, backend=backend)
+
+    def fwd_bwd():
+        out = rasterize(**leaves, **rest, backend=backend)
+        loss = (out.image * weights).sum() + out.depth.mean()
+        loss.backward()
+        for v in leaves.values():
+            v.grad = None
+
+    timings = {}
+    for name, fn in (("forward", fwd), ("forward_backward", fwd_bwd)):
+        for _ in range(warmup):
+            fn()
+        samples = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            samples.append((time.perf_counter() - t0) * 1e3)
+        timings[name] = statistics.median(samples)
+    return dict(
+        ms_forward=timings["forward"],
+        ms_forward_backward=timings["forward_backward"],
+        peak_mb=_peak_rss_mb(),
+        peak_mb_increase=max(0.0, _peak_rss_mb() - rss_before),
+        repeats=repeats,
+    )
+
+
+def run_raster_bench(
+    json_path: str | Path | None = None,
+    widths: tuple[int, ...] = (128, 256),
+    counts: tuple[int, ...] = (5000, 20000, 100000),
+    repeats: int = 7,
+    backends: list[str] | None = None,
+    update_docs: bool = True,
+) -> list[dict]:
+    """Time forward and forward + backward of every backend on every (width, count) workload.
+
+    Median of ``repeats`` runs after one warm-up; the reference backend gets fewer repeats when it
+    is slow (under ~10 s per workload). ``peak_mb`` is the process's peak RSS after the workload
+    (monotone over the run, so read ``peak_mb_increase`` for what a workload added on top of
+    everything before it). Returns one record per backend and workload.
+    """
+    backends = list(backends) if backends is not None else available_backends("cpu")
+    records = []
+    for width in widths:
+        height = width * 3 // 4
+        for n in counts:
+            scene = random_scene(n, width, height, seed=0)
+            for backend in backends:
+                reps = repeats
+                if backend == "reference":
+                    t0 = time.perf_counter()
+                    _time_backend(scene, backend, repeats=1, warmup=0)
+                    once = time.perf_counter() - t0
+                    reps = max(1, min(repeats, math.floor(10.0 / max(once, 1e-3))))
+                rec = dict(backend=backend, width=width, height=height, gaussians=n)
+                rec.update(_time_backend(scene, backend, repeats=reps, warmup=1 if backend != "reference" else 0))
+                rec["threads"] = torch.get_num_threads()
+                records.append(rec)
+                print(
+                    f"raster {backend:9s} {width}x{height} N={n:6d}: fwd {rec['ms_forward']:9.2f} ms, "
+                    f"fwd+bwd {rec['ms_forward_backward']:9.2f} ms ({reps} reps)",
+                    flush=True,
+                )
+
+    if json_path is not None:
+        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
+        Path(json_path).write_text(json.dumps({"machine": machine_description(), "records": records}, indent=2))
+    if update_docs:
+        update_section("raster", _markdown(records))
+    return records
+
+
+def _markdown(records: list[dict]) -> str:
+    rows = []
+    by_key = {(r["backend"], r["width"], r["gaussians"]): r for r in records}
+    for r in records:
+        row = dict(r)
+        ref = by_key.get(("reference", r["width"], r["gaussians"]))
+        if r["backend"] != "reference" and ref is not None:
+            row["speed-up fwd"] = f"{ref['ms_forward'] / r['ms_forward']:.0f}x"
+            row["speed-up fwd+bwd"] = f"{ref['ms_forward_backward'] / r['ms_forward_backward']:.0f}x"
+        row["image"] = f"{r['width']}x{r['height']}"
+        rows.append(row)
+    cols = ["backend", "image", "gaussians", "ms_forward", "ms_forward_backward", "peak_mb"]
+    cols += ["speed-up fwd", "speed-up fwd+bwd"]
+    return "\n".join(
+        [
+            "## Rasteriser (`tracegs.render.rasterize`)",
+            "",
+            f"Machine: {machine_description()}",
+            "",
+            "Command: `tracegs bench raster --json FILE` (median over repeats after a warm-up; RGB colours; "
+            "speed-up = reference time / backend time at the same workload; peak_mb = process peak RSS).",
+            "",
+            markdown_table(rows, cols),
+        ]
+    )

@@ -1,0 +1,16 @@
+"""The photometric loss of 3DGS and TRACE: (1 - w) * L1 + w * (1 - SSIM), w = 0.2."""
+
+from __future__ import annotations
+
+import torch
+
+from ..eval.metrics import ssim
+
+
+def photometric_loss(
+    image: torch.Tensor, target: torch.Tensor, ssim_weight: float = 0.2
+) -> dict[str, torch.Tensor]:
+    """Named loss terms for a rendered ``image`` [H, W, 3] against ``target`` [H, W, 3]; "loss" is the sum."""
+    l1 = (image - target).abs().mean()
+    s = ssim(image, target)
+    return {"l1": l1, "ssim": s.detach(), "loss": (1 - ssim_weight) * l1 + ssim_weight * (1 - s)}

@@ -1,0 +1,213 @@
+"""Adaptive density control of 3DGS as a Strategy object (the gsplat pattern).
+
+One signature for every strategy: ``initialize_state()``, ``step_pre_backward(...)`` (ask the renderer
+to keep the view-space gradient), ``step_post_backward(...)`` (accumulate it; clone, split, prune,
+reset opacities on schedule). Each Gaussian parameter has its own Adam optimiser so that rows can be
+added and removed together with their optimiser moments.
+N: Gaussians.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from torch import nn
+
+from ..physics.so3 import quat_to_rotmat
+
+
+@dataclass
+class DensifyConfig:
+    """Adaptive density control (clone / split / prune / opacity reset), 3DGS defaults."""
+
+    refine_start: int = 500
+    """Step (within the stage) at which densification starts."""
+    refine_stop: int = 15_000
+    """Step after which the number of Gaussians is frozen."""
+    refine_every: int = 100
+    """Densify and prune every this many steps."""
+    reset_every: int = 3000
+    """Reset opacities to ``reset_opacity`` every this many steps (0 = never)."""
+    reset_opacity: float = 0.01
+    """Opacity after a reset (3DGS: 0.01)."""
+    grow_grad2d: float = 0.0002
+    """View-space (NDC) positional gradient above which a Gaussian is cloned or split."""
+    grow_scale3d: float = 0.01
+    """Relative to the scene extent: smaller Gaussians are cloned, larger ones split."""
+    prune_opacity: float = 0.005
+    """Gaussians below this opacity are removed."""
+    prune_scale3d: float = 0.1
+    """Relative to the scene extent: larger Gaussians are removed (after the first opacity reset)."""
+    max_gaussians: int = 1_000_000
+    """Growth stops at this count (a budget for slow devices)."""
+
+
+@dataclass
+class DefaultStrategy:
+    """Clone small, split large Gaussians with high view-space gradient; prune transparent/huge ones."""
+
+    cfg: DensifyConfig
+    scene_extent: float
+
+    def initialize_state(self) -> dict[str, Any]:
+        return {"grad2d": None, "count": None}
+
+    def step_pre_backward(self, render_info: dict) -> None:
+        means2d = render_info["means2d"]
+        if means2d.requires_grad:
+            means2d.retain_grad()
+
+    @torch.no_grad()
+    def step_post_backward(
+        self,
+        params: nn.ParameterDict,
+        optimizers: dict[str, torch.optim.Optimizer],
+        state: dict[str, Any],
+        step: int,
+        render_info: dict,
+    ) -> dict[str, int]:
+        """Accumulate gradients of this step; refine on schedule. Returns counts of what changed."""
+        cfg = self.cfg
+        if step >= cfg.refine_stop:
+            return {}
+        self._accumulate(params, state, render_info)
+        report: dict[str, int] = {}
+        if step > cfg.refine_start and step % cfg.refine_every == 0:
+            report = self._refine(params, optimizers, state, step)
+        if cfg.reset_every and step > 0 and step % cfg.reset_every == 0:
+            limit = torch.logit(torch.tensor(cfg.reset_opacity * 2)).item()
+            params["opacities"].data.clamp_(max=limit)
+            reset_optimizer_state(optimizers["opacities"])
+        return report
+
+    def _accumulate(self, params, state, info) -> None:
+        grad = info["means2d"].grad
+        if grad is None:
+            return
+        n = params["means"].shape[0]
+        if state["grad2d"] is None or state["grad2d"].shape[0] != n:
+            state["grad2d"] = torch.zeros(n, device=grad.device)
+            state["count"] = torch.zeros(n, device=grad.device)
+        # Pixel-space gradient -> NDC units, the space 3DGS's threshold is defined in.
+        g = grad.detach().clone()
+        g[:, 0] *= info["width"] / 2.0
+        g[:, 1] *= info["height"] / 2.0
+        visible = info["radii"] > 0
+        state["grad2d"][visible] += g[visible].norm(dim=-1)
+        state["count"][visible] += 1
+
+    def _refine(self, params, optimizers, state, step) -> dict[str, int]:
+        cfg = self.cfg
+        if state["grad2d"] is None:
+            return {}
+        avg = state["grad2d"] / state["count"].clamp_min(1)
+        high = avg > cfg.grow_grad2d
+        max_scale = torch.exp(params["scales"]).max(dim=-1).values
+        small = max_scale <= cfg.grow_scale3d * self.scene_extent
+        budget = max(cfg.max_gaussians - params["means"].shape[0], 0)
+        clone = _limit(high & small, budget)
+        split = _limit(high & ~small, max(budget - int(clone.sum()), 0))
+        n_clone, n_split = int(clone.sum()), int(split.sum())
+        if n_clone:
+            duplicate(params, optimizers, clone)
+        if n_split:
+            split = torch.cat([split, torch.zeros(n_clone, dtype=torch.bool, device=split.device)])
+            split_gaussians(params, optimizers, split)
+        opacity = torch.sigmoid(params["opacities"])
+        prune = opacity < cfg.prune_opacity
+        if step > cfg.reset_every:
+            prune |= torch.exp(params["scales"]).max(dim=-1).values > cfg.prune_scale3d * self.scene_extent
+        n_prune = int(prune.sum())
+        if n_prune:
+            remove(params, optimizers, prune)
+        state["grad2d"] = state["count"] = None
+        return {"cloned": n_clone, "split": n_split, "pruned": n_prune}
+
+
+def _limit(mask: torch.Tensor, budget: int) -> torch.Tensor:
+    """Keep at most ``budget`` of the selected entries (the first ones)."""
+    if int(mask.sum()) <= budget:
+        return mask
+    idx = mask.nonzero().squeeze(1)[budget:]
+    mask = mask.clone()
+    mask[idx] = False
+    return mask
+
+
+def _update_rows(params, optimizers, fn_param, fn_moment) -> None:
+    """Replace every parameter by ``fn_param(name, p)`` and its Adam moments by ``fn_moment(m)``."""
+    for name in list(params.keys()):
+        new = nn.Parameter(fn_param(name, params[name].data))
+        opt = optimizers[name]
+        old = opt.param_groups[0]["params"][0]
+        st = opt.state.pop(old, None)
+        opt.param_groups[0]["params"][0] = new
+        if st is not None:
+            opt.state[new] = {
+                k: (fn_moment(v) if k in ("exp_avg", "exp_avg_sq") else v) for k, v in st.items()
+            }
+        params[name] = new
+
+
+def duplicate(params, optimizers, mask: torch.Tensor) -> None:
+    """Clone the selected Gaussians (new copies get zero optimiser moments)."""
+    _update_rows(
+        params,
+        optimizers,
+        lambda _, p: torch.cat([p, p[mask]]),
+        lambda m: torch.cat([m, torch.zeros_like(m[mask])]),
+    )
+
+
+def remove(params, optimizers, mask: torch.Tensor) -> None:
+    keep = ~mask
+    _update_rows(params, optimizers, lambda _, p: p[keep], lambda m: m[keep])
+
+
+def split_gaussians(params, optimizers, mask: torch.Tensor, samples: int = 2) -> None:
+    """Replace each selected Gaussian by ``samples`` smaller ones drawn from it (3DGS: scale / 1.6)."""
+    sel = mask.nonzero().squeeze(1)
+    scales = torch.exp(params["scales"].data[sel])  # [S, 3]
+    R = quat_to_rotmat(params["quats"].data[sel])  # [S, 3, 3]
+    offsets = torch.randn(samples, len(sel), 3, device=scales.device) * scales
+    new_means = (torch.einsum("sij,nsj->nsi", R, offsets) + params["means"].data[sel]).reshape(-1, 3)
+    keep = ~mask
+
+    def new_param(name, p):
+        if name == "means":
+            added = new_means
+        elif name == "scales":
+            added = torch.log(scales / (0.8 * samples)).repeat(samples, 1)
+        else:
+            added = p[sel].repeat(samples, *([1] * (p.dim() - 1)))
+        return torch.cat([p[keep], added])
+
+    _update_rows(
+        params,
+        optimizers,
+        new_param,
+        lambda m: torch.cat(
+            [m[keep], torch.zeros((samples * len(sel), *m.shape[1:]), device=m.device, dtype=m.dtype)]
+        ),
+    )
+
+
+def reset_optimizer_state(opt: torch.optim.Optimizer) -> None:
+    for st in opt.state.values():
+        for k in ("exp_avg", "exp_avg_sq"):
+            if k in st:
+                st[k].zero_()
+
+
+def scene_extent_from_cameras(centers: torch.Tensor) -> float:
+    """3DGS's ``spatial_lr_scale``: 1.1 x the radius of the camera centres around their mean."""
+    return 1.1 * float((centers - centers.mean(0)).norm(dim=-1).max().clamp_min(1e-6))
+
+
+def log_interp(start: float, end: float, frac: float) -> float:
+    """Exponential decay from ``start`` to ``end`` at fraction ``frac`` in [0, 1] (3DGS schedules)."""
+    frac = min(max(frac, 0.0), 1.0)
+    return math.exp(math.log(start) * (1 - frac) + math.log(end) * frac)

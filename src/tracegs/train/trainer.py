@@ -1,0 +1,239 @@
+"""The training loop: stage 1 (static 3DGS at t = 0), stage 2 (TRACE or DefGS), checkpoints, resume.
+
+A run folder holds ``config.json`` (the resolved config), ``checkpoint.pt`` (written atomically every
+``checkpoint_every`` steps; a killed run resumes from it), ``log.jsonl`` (losses and timings) and
+``summary.json`` (wall time, iterations, Gaussians, per-part timings).
+"""
+
+from __future__ import annotations
+
+import json
+import random
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import torch
+from tqdm import tqdm
+
+from ..config import TrainConfig, config_to_dict, load_config, save_config
+from ..data.blender import load_scene
+from ..data.dataset import ViewDataset, frame_interval
+from ..models.gaussians import empty_like_params, random_gaussians
+from ..models.trace import TraceModel
+from ..utils import atomic_torch_save, atomic_write_text, resolve_device, seed_everything
+from .losses import photometric_loss
+from .optim import field_lr, field_optimizer, gaussian_optimizers, means_lr, set_lr
+from .strategy import DefaultStrategy, scene_extent_from_cameras
+
+
+def default_aabb(cfg: TrainConfig, data: ViewDataset) -> torch.Tensor:
+    if data.scene.aabb is not None:
+        return data.scene.aabb.float()
+    e = cfg.init_extent
+    return torch.tensor([[-e, -e, -e], [e, e, e]], dtype=torch.float32)
+
+
+class Trainer:
+    """Trains one run; ``Trainer(cfg).train()`` is what ``tracegs train`` does."""
+
+    def __init__(self, cfg: TrainConfig, progress: bool = True):
+        self.cfg, self.progress = cfg, progress
+        self.device = resolve_device(cfg.device)
+        self.generator = seed_everything(cfg.seed)
+        self.run = Path(cfg.run)
+        if cfg.t_train_end is not None:
+            self.t_train_end = cfg.t_train_end
+        else:  # the dataset's own value (tracegs synth writes it), else every training frame
+            self.t_train_end = load_scene(cfg.data, "train", cfg.downscale).t_train_end
+        self.data = ViewDataset(cfg.data, "train", cfg.downscale, t_max=self.t_train_end, device=self.device)
+        if len(self.data) == 0:
+            raise ValueError(f"{cfg.data}: no training frames with time <= {self.t_train_end}")
+        times = self.data.times
+        self.t_max = float(times.max())
+        self.dt_frame = frame_interval(times, self.data.scene.fps)
+        self.extent = scene_extent_from_cameras(self.data.camera_centers())
+        self.aabb = default_aabb(cfg, self.data).to(self.device)
+        self.static_views = self._static_views()
+        gaussians = random_gaussians(cfg.init_points, self.aabb, cfg.sh_degree, generator=None)
+        self.model = TraceModel(cfg, gaussians, self.aabb, self.dt_frame).to(self.device)
+        self.optimizers = gaussian_optimizers(self.model.gaussians, cfg.optim, self.extent)
+        self.field_opt = field_optimizer(self.model.field_parameters(), cfg.optim)
+        self.strategy = DefaultStrategy(cfg.densify, self.extent)
+        self.strategy_state = self.strategy.initialize_state()
+        self.step, self.train_seconds = 0, 0.0
+        self.timings: dict[str, float] = defaultdict(float)
+        if (self.run / "checkpoint.pt").is_file():
+            self._resume(self.run / "checkpoint.pt")
+
+    # ----- data ---------------------------------------------------------------------------------
+    def _static_views(self) -> list[int]:
+        """Stage 1 uses the images at the first time if at least 3 cameras saw it (multi-view
+        capture), else all training images (a monocular video has a single view per time)."""
+        t0 = min(v.time for v in self.data.views)
+        first = [i for i, v in enumerate(self.data.views) if abs(v.time - t0) < 1e-9]
+        return first if len(first) >= 3 else list(range(len(self.data)))
+
+    def _dynamic_view(self, dyn_step: int) -> int:
+        """A training image whose time lies in the current (growing) time range."""
+        growth = self.cfg.dynamic.time_growth_steps
+        frac = 1.0 if growth <= 0 else min(1.0, (1 + (8 * dyn_step) // growth) / 8)
+        limit = self.t_max * frac + 1e-9
+        allowed = [i for i, v in enumerate(self.data.views) if v.time <= limit]
+        return random.choice(allowed)
+
+    def _t_prime(self, t: float) -> float:
+        """t' = t -/+ dt with a random sign, kept inside [0, t_max]."""
+        dt = self.cfg.dynamic.dt_frames * self.dt_frame
+        sign = random.choice((-1.0, 1.0))
+        t_prime = t - sign * dt
+        if not 0.0 <= t_prime <= self.t_max:
+            t_prime = t + sign * dt
+        return min(max(t_prime, 0.0), self.t_max)
+
+    # ----- one step -------------------------------------------------------------------------------
+    def sh_degree(self) -> int:
+        return min(self.cfg.sh_degree, self.step // max(self.cfg.sh_degree_interval, 1))
+
+    def train_step(self) -> dict[str, float]:
+        cfg, step = self.cfg, self.step
+        static = step < cfg.static_iterations or cfg.method == "static"
+        dyn_step = step - cfg.static_iterations
+        total = cfg.total_iterations
+        set_lr(self.optimizers["means"], means_lr(cfg.optim, self.extent, step, total))
+        if not static:
+            set_lr(self.field_opt, field_lr(cfg.optim, dyn_step, cfg.dynamic_iterations))
+
+        t_start = time.perf_counter()
+        if static:
+            view = self.data[random.choice(self.static_views)]
+            g = self.model.gaussians
+            state = {"means": g["means"], "quats": g["quats"], "scales": g["scales"]}
+        else:
+            view = self.data[self._dynamic_view(dyn_step)]
+            physics = dyn_step >= cfg.dynamic.warmup_deformation_steps
+            state = self.model.training_state(self._t_prime(view.time), view.time, physics=physics)
+        t_fields = time.perf_counter()
+        out = self.model.render(state, view.camera, self.sh_degree(), self.data.background)
+        info = {
+            "means2d": out.means2d,
+            "radii": out.radii,
+            "width": view.camera.width,
+            "height": view.camera.height,
+        }
+        self.strategy.step_pre_backward(info)
+        losses = photometric_loss(out.image, view.image, cfg.optim.ssim_weight)
+        t_render = time.perf_counter()
+        losses["loss"].backward()
+        t_backward = time.perf_counter()
+        for opt in self.optimizers.values():
+            opt.step()
+            opt.zero_grad(set_to_none=True)
+        if not static and self.field_opt is not None:
+            self.field_opt.step()
+        if self.field_opt is not None:
+            self.field_opt.zero_grad(set_to_none=True)
+        report = self.strategy.step_post_backward(
+            self.model.gaussians, self.optimizers, self.strategy_state, step, info
+        )
+        t_end = time.perf_counter()
+        for key, dt in (
+            ("fields", t_fields - t_start),
+            ("raster_forward", t_render - t_fields),
+            ("backward", t_backward - t_render),
+            ("optimizer", t_end - t_backward),
+        ):
+            self.timings[key] += dt
+        self.train_seconds += t_end - t_start
+        self.step += 1
+        return {k: float(v.detach()) for k, v in losses.items()} | {f"n_{k}": v for k, v in report.items()}
+
+    # ----- loop -------------------------------------------------------------------------------------
+    def train(self) -> dict:
+        cfg = self.cfg
+        self.run.mkdir(parents=True, exist_ok=True)
+        save_config(cfg, self.run / "config.json")
+        total = cfg.total_iterations
+        bar = tqdm(total=total, initial=self.step, disable=not self.progress, desc=f"train {cfg.method}")
+        log = (self.run / "log.jsonl").open("a")
+        try:
+            while self.step < total:
+                stats = self.train_step()
+                bar.update(1)
+                if self.step % cfg.log_every == 0 or self.step == total:
+                    n = self.model.gaussians["means"].shape[0]
+                    bar.set_postfix(loss=f"{stats['loss']:.4f}", gaussians=n)
+                    log.write(json.dumps({"step": self.step, "gaussians": n, **stats}) + "\n")
+                    log.flush()
+                if self.step % cfg.checkpoint_every == 0 and self.step < total:
+                    self.save()
+        finally:
+            bar.close()
+            log.close()
+        self.save()
+        summary = self.summary()
+        atomic_write_text(self.run / "summary.json", json.dumps(summary, indent=2))
+        return summary
+
+    def summary(self) -> dict:
+        steps = max(self.step, 1)
+        return {
+            "method": self.cfg.method,
+            "preset": self.cfg.preset,
+            "scene": str(self.cfg.data),
+            "iterations": self.step,
+            "gaussians": int(self.model.gaussians["means"].shape[0]),
+            "train_seconds": round(self.train_seconds, 2),
+            "t_max": self.t_max,
+            "ms_per_iteration": {k: round(1000 * v / steps, 2) for k, v in self.timings.items()},
+        }
+
+    # ----- checkpoints -----------------------------------------------------------------------------
+    def save(self) -> Path:
+        ckpt = {
+            "step": self.step,
+            "train_seconds": self.train_seconds,
+            "timings": dict(self.timings),
+            "config": config_to_dict(self.cfg),
+            "t_max": self.t_max,
+            "model": self.model.state_dict(),
+            "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
+            "field_optimizer": self.field_opt.state_dict() if self.field_opt is not None else None,
+            "rng": {"torch": torch.get_rng_state(), "python": random.getstate()},
+        }
+        return atomic_torch_save(ckpt, self.run / "checkpoint.pt")
+
+    def _resume(self, path: Path) -> None:
+        ckpt = torch.load(path, map_location=self.device, weights_only=False)
+        gauss_state = {k.split(".", 1)[1]: v for k, v in ckpt["model"].items() if k.startswith("gaussians.")}
+        self.model.gaussians = empty_like_params(gauss_state)
+        self.model.load_state_dict(ckpt["model"])
+        self.optimizers = gaussian_optimizers(self.model.gaussians, self.cfg.optim, self.extent)
+        for k, o in self.optimizers.items():
+            o.load_state_dict(ckpt["optimizers"][k])
+        if self.field_opt is not None and ckpt["field_optimizer"] is not None:
+            self.field_opt.load_state_dict(ckpt["field_optimizer"])
+        self.step, self.train_seconds = ckpt["step"], ckpt["train_seconds"]
+        self.timings.update(ckpt.get("timings", {}))
+        torch.set_rng_state(ckpt["rng"]["torch"])
+        random.setstate(ckpt["rng"]["python"])
+
+
+def load_run(run: str | Path, device: str = "auto") -> tuple[TraceModel, TrainConfig, dict]:
+    """A trained model from a run folder (for rendering and evaluation), with its config and metadata."""
+    run = Path(run)
+    cfg = load_config(run / "config.json")
+    path = run / "checkpoint.pt"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no checkpoint (has `tracegs train --run {run}` finished a step?)")
+    dev = resolve_device(device)
+    ckpt = torch.load(path, map_location=dev, weights_only=False)
+    state = ckpt["model"]
+    gaussians = empty_like_params(
+        {k.split(".", 1)[1]: v for k, v in state.items() if k.startswith("gaussians.")}
+    )
+    model = TraceModel(cfg, gaussians, state["aabb"], float(state["frame_interval"])).to(dev)
+    model.load_state_dict(state)
+    model.eval()
+    meta = {"step": ckpt["step"], "train_seconds": ckpt["train_seconds"], "t_max": ckpt["t_max"]}
+    return model, cfg, meta

@@ -1,0 +1,60 @@
+"""Shared fixtures: tiny scenes in the Blender/D-NeRF format, generated on the fly."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+
+def write_tiny_scene(
+    root: Path, n_cams: int = 4, n_times: int = 4, size: int = 24, t_train_end: float = 0.75
+) -> Path:
+    """A disc moving across a textured square, seen by ``n_cams`` cameras on a circle; RGBA PNGs.
+
+    Train = all but the last camera at t <= t_train_end; val = the last camera at those times;
+    test = every camera after t_train_end. Images are synthetic patterns (not renders of a 3D
+    scene): enough for the parser, the data pipeline and smoke training.
+    """
+    root.mkdir(parents=True, exist_ok=True)
+    fov = 0.7
+    times = [k / (n_times - 1) for k in range(n_times)]
+    splits = {"train": [], "val": [], "test": []}
+    yy, xx = np.mgrid[0:size, 0:size] / size
+    for c in range(n_cams):
+        az = 2 * math.pi * c / n_cams
+        eye = np.array([3 * math.cos(az), 3 * math.sin(az), 1.5])
+        fwd = -eye / np.linalg.norm(eye)
+        right = np.cross(fwd, [0, 0, 1.0])
+        right /= np.linalg.norm(right)
+        up = np.cross(right, fwd)
+        c2w = np.eye(4)
+        c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, -fwd, eye  # OpenGL axes
+        for k, t in enumerate(times):
+            split = "test" if t > t_train_end else ("val" if c == n_cams - 1 else "train")
+            rgba = np.zeros((size, size, 4), np.uint8)
+            disc = (xx - 0.3 - 0.4 * t) ** 2 + (yy - 0.5) ** 2 < 0.04
+            board = (np.floor(xx * 6) + np.floor(yy * 6)) % 2
+            rgba[..., 0] = 200 * disc + 40 * board
+            rgba[..., 1] = 80 + 100 * board
+            rgba[..., 2] = 60 + 30 * c
+            rgba[..., 3] = np.where((xx > 0.15) & (xx < 0.85) & (yy > 0.15) & (yy < 0.85) | disc, 255, 0)
+            rel = f"{split}/c{c}_f{k}.png"
+            (root / split).mkdir(exist_ok=True)
+            iio.imwrite(root / rel, rgba)
+            splits[split].append(
+                {"file_path": rel, "time": t, "camera_id": c, "transform_matrix": c2w.tolist()}
+            )
+    for split, frames in splits.items():
+        meta = {"camera_angle_x": fov, "frames": frames, "fps": n_times - 1, "t_train_end": t_train_end}
+        (root / f"transforms_{split}.json").write_text(json.dumps(meta))
+    return root
+
+
+@pytest.fixture
+def tiny_scene(tmp_path) -> Path:
+    return write_tiny_scene(tmp_path / "scene")
