@@ -101,6 +101,11 @@ def evaluate_run(
         if split == "extrapolation":
             summary["per_time"] = _per_time(records, lpips_fn is not None)
         result[split] = summary
+    if (data / "gt" / "motion.json").is_file() and result["extrapolation"].get("frames"):
+        from .physics import physics_errors
+
+        future = [r["t"] for r in result["extrapolation"]["per_time"]]
+        result["physics"] = physics_errors(model, meta["t_max"], data, future)
     result.update(
         method=cfg.method,
         preset=cfg.preset,

@@ -47,15 +47,26 @@ class TraceModel(nn.Module):
 
     def deform(self, t: float) -> dict[str, torch.Tensor]:
         """Eq. 2: canonical Gaussians moved to time t by f_defo (identity if there is no f_defo)."""
+        return self.deform_many([t])[0]
+
+    def deform_many(self, times: list[float]) -> list[dict[str, torch.Tensor]]:
+        """:meth:`deform` at several times in one batched pass of the field (larger GEMMs are faster)."""
         g = self.gaussians
         if self.deformation is None:
-            return {"means": g["means"], "quats": g["quats"], "scales": g["scales"]}
+            return [{"means": g["means"], "quats": g["quats"], "scales": g["scales"]} for _ in times]
+        n = g["means"].shape[0]
+        x = g["means"].repeat(len(times), 1)
+        t = torch.tensor(times, dtype=x.dtype, device=x.device).repeat_interleave(n)[:, None]
         with self.autocast():
-            dx, dq, dlog_s = self.deformation(g["means"], t)
-        means, quats, log_scales = apply_deformation(
-            g["means"], g["quats"], g["scales"], dx.float(), dq.float(), dlog_s.float()
-        )
-        return {"means": means, "quats": quats, "scales": log_scales}
+            dx, dq, dlog_s = self.deformation(x, t)
+        states = []
+        for k in range(len(times)):
+            rows = slice(k * n, (k + 1) * n)
+            means, quats, log_scales = apply_deformation(
+                g["means"], g["quats"], g["scales"], dx[rows].float(), dq[rows].float(), dlog_s[rows].float()
+            )
+            states.append({"means": means, "quats": quats, "scales": log_scales})
+        return states
 
     def query_dynamics(self, means: torch.Tensor, t: float):
         """Eq. 6: the learned physical parameters of every particle at time t (float32)."""
@@ -75,15 +86,15 @@ class TraceModel(nn.Module):
             return self.deform(t)
         if self.deformation is None:  # ablation "no f_defo": dynamics carry the canonical Gaussians from 0
             t_prime = 0.0
-        start = self.deform(t_prime)
+        straight_through = dyn.straight_through and self.deformation is not None
+        start, *target = self.deform_many([t_prime, t] if straight_through else [t_prime])
         query_time = t_prime if dyn.physics_derivation else t
         params = self.query_dynamics(start["means"], query_time)
         means, quats = integrate(
             start["means"], start["quats"], params, t - t_prime, self.dt_max, method=dyn.integrator
         )[:2]
-        if dyn.straight_through and self.deformation is not None:
-            target = self.deform(t)["means"]
-            means = means + (target - target.detach())
+        if straight_through:
+            means = means + (target[0]["means"] - target[0]["means"].detach())
         return {"means": means, "quats": quats, "scales": start["scales"]}
 
     # ----- any time, past or future -----------------------------------------------------------

@@ -13,11 +13,13 @@ early termination, like a trained 3DGS scene.
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 import resource
 import statistics
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -84,16 +86,44 @@ def random_scene(
     else:
         colors = 0.3 * torch.randn(n, num_sh_bases(sh_degree), 3, generator=g, dtype=torch.float64)
         colors[:, 0] += 0.5 * rand(n, 3)
-    out = dict(means=means, quats=quats, scales=scales, opacities=opacities, colors=colors, viewmat=viewmat, K=K)
+    out = dict(
+        means=means, quats=quats, scales=scales, opacities=opacities, colors=colors, viewmat=viewmat, K=K
+    )
     out = {k: v.to(dtype) for k, v in out.items()}
     out.update(width=width, height=height, sh_degree=sh_degree)
     return out
 
 
-def _peak_rss_mb() -> float:
-    """Peak resident set size of this process so far (MB)."""
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return peak / (1024 * 1024) if sys.platform == "darwin" else peak / 1024
+def _rss_mb() -> float:
+    """Current resident set size of this process (MB); Linux only, else the peak so far."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * resource.getpagesize() / 2**20
+    except OSError:
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        return peak / 2**20 if sys.platform == "darwin" else peak / 1024
+
+
+class _PeakMemory:
+    """Highest RSS above the starting RSS while the block runs, sampled every millisecond from a
+    thread (the C++ kernels release the GIL, so the sampler sees their allocations too)."""
+
+    def __enter__(self):
+        self.base = self.peak = _rss_mb()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+        return self
+
+    def _sample(self):
+        while not self._stop.wait(0.001):
+            self.peak = max(self.peak, _rss_mb())
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+        self.peak = max(self.peak, _rss_mb())
+        self.mb = self.peak - self.base
 
 
 def _time_backend(scene: dict, backend: str, repeats: int, warmup: int) -> dict:
@@ -101,7 +131,6 @@ def _time_backend(scene: dict, backend: str, repeats: int, warmup: int) -> dict:
     leaves = {k: scene[k].clone().requires_grad_(True) for k in params}
     rest = {k: v for k, v in scene.items() if k not in params}
     weights = torch.rand(scene["height"], scene["width"], 3, generator=torch.Generator().manual_seed(1))
-    rss_before = _peak_rss_mb()
 
     def fwd():
         with torch.no_grad():
@@ -124,11 +153,13 @@ def _time_backend(scene: dict, backend: str, repeats: int, warmup: int) -> dict:
             fn()
             samples.append((time.perf_counter() - t0) * 1e3)
         timings[name] = statistics.median(samples)
+    gc.collect()
+    with _PeakMemory() as mem:  # one extra forward + backward, untimed
+        fwd_bwd()
     return dict(
         ms_forward=timings["forward"],
         ms_forward_backward=timings["forward_backward"],
-        peak_mb=_peak_rss_mb(),
-        peak_mb_increase=max(0.0, _peak_rss_mb() - rss_before),
+        peak_mb=mem.mb,
         repeats=repeats,
     )
 
@@ -144,9 +175,10 @@ def run_raster_bench(
     """Time forward and forward + backward of every backend on every (width, count) workload.
 
     Median of ``repeats`` runs after one warm-up; the reference backend gets fewer repeats when it
-    is slow (under ~10 s per workload). ``peak_mb`` is the process's peak RSS after the workload
-    (monotone over the run, so read ``peak_mb_increase`` for what a workload added on top of
-    everything before it). Returns one record per backend and workload.
+    is slow (under ~10 s per workload). ``peak_mb`` is the peak resident memory one forward +
+    backward adds on top of what the process held before it (the allocator may reuse memory kept
+    from earlier workloads, so small values are lower bounds). Returns one record per backend and
+    workload.
     """
     backends = list(backends) if backends is not None else available_backends("cpu")
     records = []
@@ -162,7 +194,9 @@ def run_raster_bench(
                     once = time.perf_counter() - t0
                     reps = max(1, min(repeats, math.floor(10.0 / max(once, 1e-3))))
                 rec = dict(backend=backend, width=width, height=height, gaussians=n)
-                rec.update(_time_backend(scene, backend, repeats=reps, warmup=1 if backend != "reference" else 0))
+                rec.update(
+                    _time_backend(scene, backend, repeats=reps, warmup=1 if backend != "reference" else 0)
+                )
                 rec["threads"] = torch.get_num_threads()
                 records.append(rec)
                 print(
@@ -173,7 +207,9 @@ def run_raster_bench(
 
     if json_path is not None:
         Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(json_path).write_text(json.dumps({"machine": machine_description(), "records": records}, indent=2))
+        Path(json_path).write_text(
+            json.dumps({"machine": machine_description(), "records": records}, indent=2)
+        )
     if update_docs:
         update_section("raster", _markdown(records))
     return records
@@ -199,7 +235,8 @@ def _markdown(records: list[dict]) -> str:
             f"Machine: {machine_description()}",
             "",
             "Command: `tracegs bench raster --json FILE` (median over repeats after a warm-up; RGB colours; "
-            "speed-up = reference time / backend time at the same workload; peak_mb = process peak RSS).",
+            "speed-up = reference time / backend time at the same workload; peak_mb = peak RSS added by one "
+            "forward + backward).",
             "",
             markdown_table(rows, cols),
         ]

@@ -14,7 +14,9 @@ densification reads. Everything runs in float32; the thread count is ``torch.get
 
 from __future__ import annotations
 
+import hashlib
 import os
+import platform
 import shutil
 import subprocess
 import warnings
@@ -48,10 +50,21 @@ def _supports_flag(flag: str) -> bool:
         return False
 
 
+def _cpu_tag() -> str:
+    """Short hash of the CPU model and instruction-set flags."""
+    info = platform.machine() + platform.processor()
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+        info += "".join(line for line in lines if line.startswith(("model name", "flags")))[:4096]
+    except OSError:
+        pass
+    return hashlib.sha1(info.encode()).hexdigest()[:8]
+
+
 def _build(openmp: bool):
     from torch.utils.cpp_extension import load
 
-    cflags = ["-O3", "-std=c++17", "-ffp-contract=off"]
+    cflags = ["-O3", "-ffp-contract=off"]
     # Same float results in the forward and backward loops (which decide alpha thresholds
     # independently) need identical rounding: no FMA contraction, no fast-math.
     if _supports_flag("-march=native"):
@@ -60,7 +73,9 @@ def _build(openmp: bool):
     if openmp:
         cflags.append("-fopenmp")
         ldflags.append("-fopenmp")
-    name = "tracegs_raster_cpu" + ("" if openmp else "_serial")
+    # -march=native binaries are CPU specific: key the cache by CPU so that a home directory shared
+    # between different machines never loads one built for another (SIGILL, no fallback possible).
+    name = f"tracegs_raster_cpu_{_cpu_tag()}" + ("" if openmp else "_serial")
     return load(name=name, sources=[str(_SOURCE)], extra_cflags=cflags, extra_ldflags=ldflags, verbose=False)
 
 
@@ -154,7 +169,18 @@ class _RasterizeFunction(torch.autograd.Function):
             means2d, conics, colors, opacities, depths, extents, radii, width, height, nt
         )
         ctx.save_for_backward(
-            means2d, conics, colors, opacities, depths, extents, final_t, last, tile_off, flat_ids, gauss_off, isect_pos
+            means2d,
+            conics,
+            colors,
+            opacities,
+            depths,
+            extents,
+            final_t,
+            last,
+            tile_off,
+            flat_ids,
+            gauss_off,
+            isect_pos,
         )
         ctx.cfg = (width, height)
         return color, alpha, depth

@@ -125,7 +125,9 @@ def project_gaussians(
         o = opacities.detach().to(a)
         m = 2.0 * torch.log(torch.clamp_min(255.0 * o, 1.0))
         extents = torch.stack([torch.sqrt(m * a), torch.sqrt(m * c)], dim=-1)
-        extents = torch.where((visible & (o >= ALPHA_THRESHOLD))[:, None], extents, torch.full_like(extents, -1.0))
+        extents = torch.where(
+            (visible & (o >= ALPHA_THRESHOLD))[:, None], extents, torch.full_like(extents, -1.0)
+        )
 
     vis = visible[:, None]
     return Projection(
@@ -213,7 +215,15 @@ def rasterize_reference(
                 torch.arange(x_lo, x_hi, device=device, dtype=dtype) + 0.5,
                 indexing="ij",
             )
-            args = (xx.reshape(-1), yy.reshape(-1), means2d[sel], conics[sel], colors[sel], opacities[sel], depths[sel])
+            args = (
+                xx.reshape(-1),
+                yy.reshape(-1),
+                means2d[sel],
+                conics[sel],
+                colors[sel],
+                opacities[sel],
+                depths[sel],
+            )
             if use_checkpoint:
                 col, alp, dep = checkpoint(_blend_tile, *args, use_reentrant=False)
             else:

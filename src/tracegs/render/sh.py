@@ -17,7 +17,13 @@ from torch import Tensor
 # Normalisation constants of the real SH basis (degree 0..3), as in 3DGS.
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
-SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+SH_C2 = (
+    1.0925484305920792,
+    -1.0925484305920792,
+    0.31539156525252005,
+    -1.0925484305920792,
+    0.5462742152960396,
+)
 SH_C3 = (
     -0.5900435899266435,
     2.890611442640554,
@@ -81,7 +87,9 @@ def eval_sh_colors(means: Tensor, coeffs: Tensor, viewmat: Tensor, degree: int) 
     """
     nb = num_sh_bases(degree)
     if coeffs.dim() != 3 or coeffs.shape[-1] != 3 or coeffs.shape[1] < nb:
-        raise ValueError(f"SH colors must be [N, K>={nb}, 3] for sh_degree={degree}, got {tuple(coeffs.shape)}")
+        raise ValueError(
+            f"SH colors must be [N, K>={nb}, 3] for sh_degree={degree}, got {tuple(coeffs.shape)}"
+        )
     dirs = means - camera_center(viewmat).to(means)  # [N, 3]
     dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     basis = sh_basis(degree, dirs)  # [N, nb]

@@ -41,7 +41,9 @@ def composite_on_white(rgba: np.ndarray) -> np.ndarray:
     return np.rint(rgba[..., :3] * a + 255 * (1 - a)).astype(np.uint8)
 
 
-def contact_sheet(root: str | Path, path: str | Path, cameras=(0, 4, 13), frames=None, masks: bool = True) -> Path:
+def contact_sheet(
+    root: str | Path, path: str | Path, cameras=(0, 4, 13), frames=None, masks: bool = True
+) -> Path:
     """Save a grid: one row per camera (image and, with ``masks``, its part mask), one column per
     frame (default: 6 frames from t = 0 to 1, so both training and extrapolation times show)."""
     import matplotlib
@@ -57,7 +59,9 @@ def contact_sheet(root: str | Path, path: str | Path, cameras=(0, 4, 13), frames
     if frames is None:
         frames = sorted({round(x) for x in np.linspace(0, n_frames - 1, 6)})
     rows = [(c, kind) for c in cameras for kind in (("image", "mask") if masks else ("image",))]
-    fig, axes = plt.subplots(len(rows), len(frames), figsize=(1.6 * len(frames), 1.6 * len(rows)), squeeze=False)
+    fig, axes = plt.subplots(
+        len(rows), len(frames), figsize=(1.6 * len(frames), 1.6 * len(rows)), squeeze=False
+    )
     for r, (c, kind) in enumerate(rows):
         for k, f in enumerate(frames):
             rel, t, split = index[(c, f)]

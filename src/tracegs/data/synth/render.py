@@ -2,10 +2,20 @@
 
 Uses the ``scalar_rgb`` variant, which every Mitsuba wheel ships and which renders the same bytes
 on every run (image blocks are seeded by their index and, with a box filter, never overlap, so the
-thread schedule cannot change a sum). Shading: textured Lambertian (``diffuse``, two-sided so thin
-panels look the same from both sides) under a constant sky plus a sun, direct light only; emitters
-are hidden so the background has alpha 0. Part masks come from a second pass with the ``aov``
-integrator's ``shape_index`` at one ray through each pixel centre, mapped to part ids.
+thread schedule cannot change a sum).
+
+Shading is textured Lambertian (``diffuse``, two-sided so thin panels look the same from both
+sides) under a sun (directional light, hard shadows) plus an ambient term: every surface emits its
+albedo times ``Lighting.ambient``, which is what an unoccluded constant sky would reflect. The
+ambient emitters are never sampled as lights (sampling weight 0) and the direct integrator takes
+no BSDF samples, so a pixel's value does not depend on random light paths: the only randomness is
+the (stratified) position of the samples in the pixel, i.e. anti-aliasing. Against a 512-spp
+reference, 16 spp give about 43 dB PSNR, where a sky light sampled by path tracing gives 34 dB at
+the same cost. There is no environment emitter, so rays that miss give alpha 0.
+
+Part masks come from a twin scene in which each part emits its id and nothing else, rendered with
+one ray through each pixel centre (the project's pixel convention); this is cheaper than the
+``aov`` integrator's ``shape_index``, which rebuilds a table of shapes for every sample.
 
 Mitsuba's camera looks along its local +z with +y up and +x to the left of the image; a Blender /
 OpenGL camera-to-world (x right, y up, z backward) becomes a Mitsuba ``to_world`` by negating its
@@ -28,11 +38,11 @@ OPENGL_TO_MITSUBA = np.diag([-1.0, 1.0, -1.0, 1.0])
 
 @dataclass(frozen=True)
 class Lighting:
-    """A constant sky and one sun; values in linear RGB."""
+    """A sun and an ambient term; values in linear RGB."""
 
-    sky_radiance: float = 0.42
-    """Radiance of the constant environment (the shade side of every part still shows its texture)."""
-    sun_irradiance: float = 1.9
+    ambient: float = 0.4
+    """Radiance of a surface of albedo 1 from ambient light alone (the shade side keeps its texture)."""
+    sun_irradiance: float = 2.0
     """Irradiance of the directional light on a surface facing it."""
     sun_direction: tuple[float, float, float] = (-0.35, -0.5, -1.0)
     """Direction the sunlight travels (from high up, slanted so faces of a box differ in shade)."""
@@ -49,30 +59,29 @@ def mitsuba():
 
 @dataclass
 class MitsubaScene:
-    """A loaded Mitsuba scene plus what is needed to pose it at a time and decode its masks."""
+    """The colour scene and its part-id twin, posed together."""
 
-    scene: object  # mi.Scene
-    params: object  # mi.SceneParameters, to move the vertices
+    color: object  # mi.Scene with textures and lights
+    ids: object  # mi.Scene whose shapes emit their part id in the red channel
+    params: tuple  # (mi.SceneParameters of color, of ids), to move the vertices
     rest_vertices: list[tuple[str, int, np.ndarray]]  # (shape id, part index, [V, 3] rest pose)
-    shape_to_part_id: np.ndarray  # [S + 1] uint8: AOV shape index -> part id (0 = background)
-    mask_integrator: object  # mi.Integrator writing the shape index of the first hit
 
 
 def _shape_id(part: int, piece: int) -> str:
     return f"part{part + 1}_piece{piece}"
 
 
-def _mesh(mi, name: str, mesh, texture: np.ndarray):
+def _rgb_bitmap(image: np.ndarray) -> dict:
+    mi = mitsuba()
+    return {"type": "bitmap", "bitmap": mi.Bitmap(np.ascontiguousarray(image, dtype=np.float32))}
+
+
+def _mesh(name: str, mesh, bsdf: dict, emitter: dict):
+    """A Mitsuba mesh from our numpy mesh, with its material and emitter."""
+    mi = mitsuba()
     props = mi.Properties()
-    props["bsdf"] = mi.load_dict(
-        {
-            "type": "twosided",
-            "material": {
-                "type": "diffuse",
-                "reflectance": {"type": "bitmap", "bitmap": mi.Bitmap(np.ascontiguousarray(texture))},
-            },
-        }
-    )
+    props["bsdf"] = mi.load_dict(bsdf)
+    props["emitter"] = mi.load_dict(emitter)
     shape = mi.Mesh(
         name,
         len(mesh.vertices),
@@ -90,47 +99,59 @@ def _mesh(mi, name: str, mesh, texture: np.ndarray):
 
 
 def build_scene(spec: SceneSpec, lighting: Lighting = Lighting()) -> MitsubaScene:
-    """Load every piece of every part in its rest pose, with lights and a direct-light integrator."""
+    """Load every piece of every part in its rest pose into the colour scene and the id scene."""
     mi = mitsuba()
-    d = {
+    color = {
         "type": "scene",
-        # max_depth 2 = camera ray + direct light; no interreflection noise to learn.
-        "integrator": {"type": "path", "max_depth": 2, "hide_emitters": True},
-        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": lighting.sky_radiance}},
+        "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0},
         "sun": {
             "type": "directional",
             "direction": list(lighting.sun_direction),
             "irradiance": {"type": "rgb", "value": lighting.sun_irradiance},
         },
     }
+    # max_depth 1: the value of a pixel is the emission of the first surface hit, nothing else.
+    ids = {"type": "scene", "integrator": {"type": "path", "max_depth": 1}}
+    black = {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}}
     rest = []
     for p, part in enumerate(spec.parts):
         for k, piece in enumerate(part.pieces):
             sid = _shape_id(p, k)
-            d[sid] = _mesh(mi, sid, piece.mesh, piece.texture)
+            bsdf = {
+                "type": "twosided",
+                "material": {"type": "diffuse", "reflectance": _rgb_bitmap(piece.texture)},
+            }
+            ambient = {
+                "type": "area",
+                "sampling_weight": 0.0,
+                "radiance": _rgb_bitmap(lighting.ambient * piece.texture),
+            }
+            color[sid] = _mesh(sid, piece.mesh, bsdf, ambient)
+            part_id = {"type": "area", "radiance": {"type": "rgb", "value": [float(p + 1), 0.0, 0.0]}}
+            ids[sid] = _mesh(sid, piece.mesh, black, part_id)
             rest.append((sid, p, piece.mesh.vertices.astype(np.float64)))
-    scene = mi.load_dict(d)
-    part_of = {sid: p + 1 for sid, p, _ in rest}
-    # shape_index is 1 + the position in scene.shapes(); read the order back rather than assume it.
-    lut = np.zeros(len(scene.shapes()) + 1, dtype=np.uint8)
-    for i, shape in enumerate(scene.shapes()):
-        lut[i + 1] = part_of[shape.id()]
-    mask_integrator = mi.load_dict({"type": "aov", "aovs": "sid:shape_index"})
-    return MitsubaScene(scene, mi.traverse(scene), rest, lut, mask_integrator)
+    color_scene, id_scene = mi.load_dict(color), mi.load_dict(ids)
+    return MitsubaScene(color_scene, id_scene, (mi.traverse(color_scene), mi.traverse(id_scene)), rest)
 
 
 def pose(ms: MitsubaScene, transforms: np.ndarray) -> None:
     """Move every part by its rest -> world transform ``transforms`` [P, 4, 4] (in place)."""
-    for sid, p, v in ms.rest_vertices:
-        m = transforms[p]
-        ms.params[f"{sid}.vertex_positions"] = (v @ m[:3, :3].T + m[:3, 3]).astype(np.float32).ravel()
-    ms.params.update()
+    for params in ms.params:
+        for sid, p, v in ms.rest_vertices:
+            m = transforms[p]
+            params[f"{sid}.vertex_positions"] = (v @ m[:3, :3].T + m[:3, 3]).astype(np.float32).ravel()
+        params.update()
+
+
+def samples_per_pixel(spp: int) -> int:
+    """The stratified sampler uses a square grid of strata: ``spp`` rounded up to a square."""
+    return int(np.ceil(np.sqrt(spp))) ** 2
 
 
 def make_sensors(c2w_opengl: np.ndarray, camera_angle_x: float, resolution: int, spp: int) -> tuple:
-    """(colour sensor, mask sensor) for one camera. The colour sensor averages ``spp`` random
-    samples per pixel with a box filter (anti-aliasing that stays inside the pixel); the mask sensor
-    shoots one ray through the pixel centre, the convention of the project's cameras."""
+    """(colour sensor, mask sensor) for one camera. The colour sensor averages ``spp`` jittered
+    stratified samples per pixel with a box filter (anti-aliasing that stays inside the pixel); the
+    mask sensor shoots one ray through the pixel centre, the convention of the project's cameras."""
     mi = mitsuba()
     to_world = mi.ScalarTransform4f(np.asarray(c2w_opengl, dtype=np.float64) @ OPENGL_TO_MITSUBA)
     common = {
@@ -147,7 +168,9 @@ def make_sensors(c2w_opengl: np.ndarray, camera_angle_x: float, resolution: int,
         "pixel_format": "rgba",
         "rfilter": {"type": "box"},
     }
-    color = mi.load_dict({**common, "film": film, "sampler": {"type": "independent", "sample_count": spp}})
+    color = mi.load_dict(
+        {**common, "film": film, "sampler": {"type": "stratified", "sample_count": samples_per_pixel(spp)}}
+    )
     mask = mi.load_dict(
         {**common, "film": film, "sampler": {"type": "stratified", "sample_count": 1, "jitter": False}}
     )
@@ -156,15 +179,14 @@ def make_sensors(c2w_opengl: np.ndarray, camera_angle_x: float, resolution: int,
 
 def render_rgba(ms: MitsubaScene, sensor, seed: int) -> np.ndarray:
     """[H, W, 4] float32 linear RGB premultiplied by alpha (coverage of the pixel by the object)."""
-    img = np.array(mitsuba().render(ms.scene, sensor=sensor, seed=seed), dtype=np.float32)
+    img = np.array(mitsuba().render(ms.color, sensor=sensor, seed=seed), dtype=np.float32)
     return img[..., :4]
 
 
 def render_part_ids(ms: MitsubaScene, sensor) -> np.ndarray:
     """[H, W] uint8 part id of the surface seen through each pixel centre, 0 for background."""
-    img = np.array(mitsuba().render(ms.scene, sensor=sensor, integrator=ms.mask_integrator, seed=0))
-    shape_index = np.rint(img[..., -1]).astype(np.int64)
-    return ms.shape_to_part_id[shape_index]
+    img = np.array(mitsuba().render(ms.ids, sensor=sensor, seed=0))
+    return np.rint(img[..., 0]).astype(np.uint8)
 
 
 def linear_to_srgb(x: np.ndarray) -> np.ndarray:

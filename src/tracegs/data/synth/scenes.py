@@ -126,7 +126,11 @@ def foldingchair() -> SceneSpec:
         (Piece(g.box((0.05, 0.6, 0.52), (-0.335, 0.0, 0.3)), back_tex),),
         # Hinge along y at the bottom of the backrest; about -y it reclines backwards (top to -x).
         RigidMotion(
-            "rotation", axis=(0, -1, 0), pivot=(-0.335, 0, 0.04), angular_velocity=0.3, angular_acceleration=0.8
+            "rotation",
+            axis=(0, -1, 0),
+            pivot=(-0.335, 0, 0.04),
+            angular_velocity=0.3,
+            angular_acceleration=0.8,
         ),
     )
     tray_tex = tx.with_noise(tx.stripes(TEXTURE_SIZE, 5, (0.15, 0.55, 0.20), (0.95, 0.85, 0.20)), r(3), 0.2)
@@ -136,7 +140,11 @@ def foldingchair() -> SceneSpec:
         (Piece(g.box((0.4, 0.03, 0.3), (0.02, 0.33, -0.21)), tray_tex),),
         # Hinge along x at the tray's top edge; about +x a positive angle swings it out to +y and up.
         RigidMotion(
-            "rotation", axis=(1, 0, 0), pivot=(0.02, 0.33, -0.06), angular_velocity=0.2, angular_acceleration=1.2
+            "rotation",
+            axis=(1, 0, 0),
+            pivot=(0.02, 0.33, -0.06),
+            angular_velocity=0.2,
+            angular_acceleration=1.2,
         ),
     )
     return SceneSpec(
@@ -170,7 +178,10 @@ def satellite() -> SceneSpec:
         "left_wing",
         (Piece(g.box((0.46, 0.02, 0.46), (0.0, 0.27, 0.0)), tx.with_noise(solar, r(1), 0.15)),),
         RigidMotion(
-            "rotation+translation", axis=(1, 0, 0), pivot=(0.0, 0.27, 0.23), angular_velocity=1.0,
+            "rotation+translation",
+            axis=(1, 0, 0),
+            pivot=(0.0, 0.27, 0.23),
+            angular_velocity=1.0,
             linear_velocity=drift,
         ),
     )
@@ -178,8 +189,12 @@ def satellite() -> SceneSpec:
         "right_wing",
         (Piece(g.box((0.46, 0.02, 0.46), (0.0, -0.27, 0.0)), tx.with_noise(solar_b, r(2), 0.15)),),
         RigidMotion(
-            "rotation+translation", axis=(-1, 0, 0), pivot=(0.0, -0.27, 0.23), angular_velocity=0.8,
-            angular_acceleration=0.2, linear_velocity=drift,
+            "rotation+translation",
+            axis=(-1, 0, 0),
+            pivot=(0.0, -0.27, 0.23),
+            angular_velocity=0.8,
+            angular_acceleration=0.2,
+            linear_velocity=drift,
         ),
     )
     door_tex = tx.with_noise(tx.stripes(TEXTURE_SIZE, 4, (0.85, 0.10, 0.10), (0.96, 0.96, 0.96)), r(3), 0.15)
@@ -188,7 +203,10 @@ def satellite() -> SceneSpec:
         "door",
         (Piece(g.box((0.02, 0.3, 0.3), (0.265, 0.0, 0.0)), door_tex),),
         RigidMotion(
-            "rotation+translation", axis=(0, 0, 1), pivot=(0.265, 0.15, 0.0), angular_velocity=1.2,
+            "rotation+translation",
+            axis=(0, 0, 1),
+            pivot=(0.265, 0.15, 0.0),
+            angular_velocity=1.2,
             linear_velocity=drift,
         ),
     )
@@ -203,7 +221,9 @@ def fallingball() -> SceneSpec:
     """A spinning ball thrown over a static slab: projectile under gravity plus constant spin."""
     r = lambda k: _rng("fallingball", k)  # noqa: E731
     slab_tex = tx.with_noise(tx.checker(TEXTURE_SIZE, 8, (0.35, 0.35, 0.38), (0.80, 0.80, 0.78)), r(0), 0.25)
-    slab = Part("ground", (Piece(g.box((1.3, 0.7, 0.06), (0.0, 0.0, -0.93)), slab_tex),), RigidMotion("static"))
+    slab = Part(
+        "ground", (Piece(g.box((1.3, 0.7, 0.06), (0.0, 0.0, -0.93)), slab_tex),), RigidMotion("static")
+    )
     colors = [(0.90, 0.15, 0.15), (0.98, 0.85, 0.15), (0.15, 0.45, 0.90), (0.98, 0.98, 0.98)]
     bands = tx.palette_bands(TEXTURE_SIZE, colors * 2, along_u=True)
     rings = tx.stripes(TEXTURE_SIZE, 4, (1, 1, 1), (0.35, 0.35, 0.35), along_u=False, duty=0.15)
@@ -213,11 +233,17 @@ def fallingball() -> SceneSpec:
         "ball",
         (Piece(_place(g.sphere(0.2), _rot((1, 0, 0), 0.4), center), ball_tex),),
         RigidMotion(
-            "projectile", axis=(0.2, 1.0, 0.3), pivot=center, angular_velocity=4.0,
-            linear_velocity=(0.65, 0.0, 1.0), linear_acceleration=(0.0, 0.0, -2.0),
+            "projectile",
+            axis=(0.2, 1.0, 0.3),
+            pivot=center,
+            angular_velocity=4.0,
+            linear_velocity=(0.65, 0.0, 1.0),
+            linear_acceleration=(0.0, 0.0, -2.0),
         ),
     )
-    return SceneSpec("fallingball", "ball thrown under gravity with constant spin; ground static", (slab, ball))
+    return SceneSpec(
+        "fallingball", "ball thrown under gravity with constant spin; ground static", (slab, ball)
+    )
 
 
 def slider() -> SceneSpec:
@@ -245,10 +271,10 @@ def slider() -> SceneSpec:
         (Piece(g.box((0.3, 0.26, 0.2), (-0.6, 0.0, -0.16)), cart_tex),),
         RigidMotion("translation", linear_velocity=(0.1, 0.0, 0.0), linear_acceleration=(0.9, 0.0, 0.0)),
     )
-    wheel_tex = tx.sectors(
-        TEXTURE_SIZE, [(0.15, 0.60, 0.30), (0.95, 0.95, 0.90), (0.20, 0.35, 0.85), (0.95, 0.95, 0.90)] * 2,
-        rim=(0.15, 0.15, 0.15),
-    )
+    # Four different colours between white spokes: no rotational symmetry, so the angle is unambiguous.
+    spokes = [(0.15, 0.60, 0.30), (0.20, 0.35, 0.85), (0.85, 0.20, 0.20), (0.95, 0.75, 0.10)]
+    white = (0.95, 0.95, 0.90)
+    wheel_tex = tx.sectors(TEXTURE_SIZE, [c for s in spokes for c in (s, white)], rim=(0.15, 0.15, 0.15))
     wheel_center = (0.0, -0.44, 0.2)
     wheel = Part(
         "wheel",

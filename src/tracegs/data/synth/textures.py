@@ -64,7 +64,9 @@ def checker(size: int, squares: int, c0: Color, c1: Color) -> np.ndarray:
     return _mix(mask, c0, c1)
 
 
-def stripes(size: int, count: int, c0: Color, c1: Color, along_u: bool = True, duty: float = 0.5) -> np.ndarray:
+def stripes(
+    size: int, count: int, c0: Color, c1: Color, along_u: bool = True, duty: float = 0.5
+) -> np.ndarray:
     """``count`` stripes across u (``along_u``) or v; ``duty`` is the fraction of each period in c1."""
     u, v = _grid(size)
     x = u if along_u else v

@@ -24,7 +24,6 @@
 namespace {
 
 constexpr int kTile = 16;
-constexpr int kTilePix = kTile * kTile;
 constexpr float kMaxAlpha = 0.99f;
 constexpr float kAlphaThreshold = 1.0f / 255.0f;
 constexpr float kTransmittanceThreshold = 1e-4f;
@@ -33,24 +32,40 @@ constexpr float kTransmittanceThreshold = 1e-4f;
 constexpr float kBoxSlack = 1e-2f;
 constexpr int kGradStride = 10;  // per intersection: mean2d(2), conic(3), color(3), opacity, depth
 
-// exp(x) for x <= 0 as straight-line code so that the pixel loops vectorise (libm's expf does not
-// without -ffast-math). Cephes-style range reduction + degree-6 polynomial; ~1 ulp.
-inline float exp_neg(float x) {
-    x = std::max(x, -87.0f);
-    const float n = std::floor(x * 1.44269504088896341f + 0.5f);
-    const float r = x - n * 0.693359375f + n * 2.12194440e-4f;
-    const float r2 = r * r;
-    float p = 1.9875691500e-4f;
+// One tile row of 16 pixels as a GCC/clang vector: the compiler maps it onto whatever SIMD the
+// target has (2 x AVX2, 1 x AVX-512, 4 x NEON) and the forward and backward passes run the exact
+// same instructions, so their alpha thresholds agree bit for bit.
+typedef float vf __attribute__((vector_size(kTile * sizeof(float))));
+typedef int32_t vi __attribute__((vector_size(kTile * sizeof(int32_t))));
+
+inline vf splat(float s) { return vf{} + s; }
+inline vi splati(int32_t s) { return vi{} + s; }
+inline vf select(vi mask, vf a, vf b) { return mask ? a : b; }
+
+// Sum of the 16 lanes, always in the same order (deterministic).
+inline float hsum(vf v) {
+    float s = 0.f;
+    for (int i = 0; i < kTile; ++i) s += v[i];
+    return s;
+}
+
+// exp(x) for x <= 0, lane-wise. Cephes-style range reduction + degree-6 polynomial (~1 ulp);
+// libm's expf would not vectorise without -ffast-math.
+inline vf exp_neg(vf x) {
+    x = select(x > -87.0f, x, splat(-87.0f));
+    const vf round_magic = splat(12582912.0f);  // 1.5 * 2^23: adding and subtracting rounds to int
+    const vf n = (x * 1.44269504088896341f + round_magic) - round_magic;
+    const vf r = x - n * 0.693359375f + n * 2.12194440e-4f;
+    const vf r2 = r * r;
+    vf p = splat(1.9875691500e-4f);
     p = p * r + 1.3981999507e-3f;
     p = p * r + 8.3334519073e-3f;
     p = p * r + 4.1665795894e-2f;
     p = p * r + 1.6666665459e-1f;
     p = p * r + 5.0000001201e-1f;
     p = p * r2 + r + 1.0f;
-    const int32_t bits = (static_cast<int32_t>(n) + 127) << 23;
-    float scale;
-    std::memcpy(&scale, &bits, sizeof(float));
-    return p * scale;
+    const vi bits = (__builtin_convertvector(n, vi) + 127) << 23;
+    return p * reinterpret_cast<const vf&>(bits);
 }
 
 struct Camera {
@@ -462,64 +477,64 @@ std::vector<torch::Tensor> raster_forward(torch::Tensor means2d, torch::Tensor c
 #pragma omp parallel for schedule(dynamic, 1) num_threads(num_threads)
     for (int tile = 0; tile < n_tiles; ++tile) {
         const int x0 = (tile % tiles_x) * kTile, y0 = (tile / tiles_x) * kTile;
-        alignas(64) float T[kTilePix], cr[kTilePix], cg[kTilePix], cb[kTilePix], cd[kTilePix];
-        alignas(64) float live[kTilePix];
-        alignas(64) int32_t last[kTilePix];
-        int n_live = 0;
-        for (int p = 0; p < kTilePix; ++p) {
-            const bool inside = (x0 + p % kTile) < W && (y0 + p / kTile) < H;
-            T[p] = 1.f, cr[p] = cg[p] = cb[p] = cd[p] = 0.f, last[p] = -1;
-            live[p] = inside ? 1.f : 0.f;
-            n_live += inside;
+        const int rows_in = std::min(kTile, H - y0), cols_in = std::min(kTile, W - x0);
+        vf px;  // pixel-centre x of the 16 columns
+        vi col_in;
+        for (int c = 0; c < kTile; ++c) px[c] = static_cast<float>(x0 + c) + 0.5f, col_in[c] = c < cols_in ? -1 : 0;
+        // per row: transmittance, accumulated colour and depth, last blended entry, still-running mask
+        vf T[kTile], cr[kTile], cg[kTile], cb[kTile], cd[kTile];
+        vi last[kTile], live[kTile];
+        int n_live = rows_in * cols_in;
+        for (int row = 0; row < kTile; ++row) {
+            T[row] = splat(1.f), cr[row] = cg[row] = cb[row] = cd[row] = splat(0.f);
+            last[row] = splati(-1);
+            live[row] = row < rows_in ? col_in : splati(0);
         }
         const int64_t s0 = toff[tile], s1 = toff[tile + 1];
         for (int64_t s = s0; s < s1 && n_live > 0; ++s) {
             const int32_t g = fid[s];
-            const int32_t k = static_cast<int32_t>(s - s0);
-            const float mx = pm[2 * g], my = pm[2 * g + 1];
+            const vi k = splati(static_cast<int32_t>(s - s0));
+            const float my = pm[2 * g + 1];
             const float A = pcon[3 * g], B = pcon[3 * g + 1], C = pcon[3 * g + 2];
             const float o = po[g], z = pz[g];
             const float r = pcol[3 * g], gg = pcol[3 * g + 1], b = pcol[3 * g + 2];
+            const vf dx = pm[2 * g] - px;
+            const vf Adx2 = A * dx * dx;
             int r0, r1;
             load_rows(my, pe[2 * g + 1], y0, H, r0, r1);
-            int n_term = 0;
+            vi n_term = splati(0);
             for (int row = r0; row <= r1; ++row) {
                 const float dy = my - (static_cast<float>(y0 + row) + 0.5f);
-                const int base = row * kTile;
-#pragma omp simd reduction(+ : n_term)
-                for (int c = 0; c < kTile; ++c) {
-                    const int p = base + c;
-                    const float dx = mx - (static_cast<float>(x0 + c) + 0.5f);
-                    const float sigma = 0.5f * (A * dx * dx + C * dy * dy) + B * dx * dy;
-                    const float alpha = std::min(kMaxAlpha, o * exp_neg(-sigma));
-                    const bool hit = live[p] > 0.f && sigma >= 0.f && alpha >= kAlphaThreshold;
-                    const float next_T = T[p] * (1.f - alpha);
-                    const bool term = hit && next_T <= kTransmittanceThreshold;
-                    const bool blend = hit && !term;
-                    const float w = blend ? alpha * T[p] : 0.f;
-                    cr[p] += w * r;
-                    cg[p] += w * gg;
-                    cb[p] += w * b;
-                    cd[p] += w * z;
-                    T[p] = blend ? next_T : T[p];
-                    last[p] = blend ? k : last[p];
-                    live[p] = term ? 0.f : live[p];
-                    n_term += term ? 1 : 0;
-                }
+                const vf sigma = 0.5f * (Adx2 + C * dy * dy) + B * dx * dy;
+                const vf raw = o * exp_neg(-sigma);
+                const vf alpha = select(raw < kMaxAlpha, raw, splat(kMaxAlpha));
+                const vi hit = live[row] & (sigma >= 0.f) & (alpha >= kAlphaThreshold);
+                const vf next_T = T[row] * (1.f - alpha);
+                const vi term = hit & (next_T <= kTransmittanceThreshold);
+                const vi blend = hit & ~term;
+                const vf w = select(blend, alpha * T[row], splat(0.f));
+                cr[row] += w * r;
+                cg[row] += w * gg;
+                cb[row] += w * b;
+                cd[row] += w * z;
+                T[row] = select(blend, next_T, T[row]);
+                last[row] = blend ? k : last[row];
+                live[row] &= ~term;
+                n_term += term;
             }
-            n_live -= n_term;
+            for (int c = 0; c < kTile; ++c) n_live += n_term[c];  // term lanes are -1
         }
-        for (int p = 0; p < kTilePix; ++p) {
-            const int x = x0 + p % kTile, y = y0 + p / kTile;
-            if (x >= W || y >= H) continue;
-            const int64_t pix = static_cast<int64_t>(y) * W + x;
-            oc[3 * pix] = cr[p];
-            oc[3 * pix + 1] = cg[p];
-            oc[3 * pix + 2] = cb[p];
-            od[pix] = cd[p];
-            oa[pix] = 1.f - T[p];
-            oT[pix] = T[p];
-            olast[pix] = last[p];
+        for (int row = 0; row < rows_in; ++row) {
+            for (int c = 0; c < cols_in; ++c) {
+                const int64_t pix = static_cast<int64_t>(y0 + row) * W + x0 + c;
+                oc[3 * pix] = cr[row][c];
+                oc[3 * pix + 1] = cg[row][c];
+                oc[3 * pix + 2] = cb[row][c];
+                od[pix] = cd[row][c];
+                oa[pix] = 1.f - T[row][c];
+                oT[pix] = T[row][c];
+                olast[pix] = last[row][c];
+            }
         }
     }
     return {out_color, out_alpha, out_depth, out_T, out_last, tile_offsets, flat_ids, gauss_offsets, isect_pos};
@@ -563,80 +578,83 @@ std::vector<torch::Tensor> raster_backward(torch::Tensor means2d, torch::Tensor 
 #pragma omp parallel for schedule(dynamic, 1) num_threads(num_threads)
     for (int tile = 0; tile < n_tiles; ++tile) {
         const int x0 = (tile % tiles_x) * kTile, y0 = (tile / tiles_x) * kTile;
+        const int rows_in = std::min(kTile, H - y0), cols_in = std::min(kTile, W - x0);
         const int64_t s0 = toff[tile];
-        alignas(64) float T[kTilePix], Sr[kTilePix], Sg[kTilePix], Sb[kTilePix], Sd[kTilePix];
-        alignas(64) float gr[kTilePix], gg[kTilePix], gb[kTilePix], gd[kTilePix], gaT[kTilePix];
-        alignas(64) int32_t last[kTilePix];
+        vf px;
+        for (int c = 0; c < kTile; ++c) px[c] = static_cast<float>(x0 + c) + 0.5f;
+        // per row: transmittance (walking back), colour / depth accumulated behind, output grads
+        vf T[kTile], Sr[kTile], Sg[kTile], Sb[kTile], Sd[kTile];
+        vf gr[kTile], gg[kTile], gb[kTile], gd[kTile], gaT[kTile];
+        vi last[kTile];
         int kmax = -1;
-        for (int p = 0; p < kTilePix; ++p) {
-            const int x = x0 + p % kTile, y = y0 + p / kTile;
-            Sr[p] = Sg[p] = Sb[p] = Sd[p] = 0.f;
-            if (x >= W || y >= H) {
-                T[p] = 1.f, gr[p] = gg[p] = gb[p] = gd[p] = gaT[p] = 0.f, last[p] = -1;
-                continue;
+        for (int row = 0; row < kTile; ++row) {
+            T[row] = splat(1.f);
+            Sr[row] = Sg[row] = Sb[row] = Sd[row] = splat(0.f);
+            gr[row] = gg[row] = gb[row] = gd[row] = gaT[row] = splat(0.f);
+            last[row] = splati(-1);
+            if (row >= rows_in) continue;
+            for (int c = 0; c < cols_in; ++c) {
+                const int64_t pix = static_cast<int64_t>(y0 + row) * W + x0 + c;
+                T[row][c] = pT[pix];
+                last[row][c] = plast[pix];
+                gr[row][c] = gC[3 * pix], gg[row][c] = gC[3 * pix + 1], gb[row][c] = gC[3 * pix + 2];
+                gd[row][c] = gD[pix];
+                // alpha_out = 1 - T_final, and dT_final/dalpha_k = -T_final / (1 - alpha_k)
+                gaT[row][c] = gA[pix] * pT[pix];
+                kmax = std::max(kmax, plast[pix]);
             }
-            const int64_t pix = static_cast<int64_t>(y) * W + x;
-            T[p] = pT[pix];
-            last[p] = plast[pix];
-            gr[p] = gC[3 * pix], gg[p] = gC[3 * pix + 1], gb[p] = gC[3 * pix + 2];
-            gd[p] = gD[pix];
-            // alpha_out = 1 - T_final, and dT_final/dalpha_k = -T_final / (1 - alpha_k)
-            gaT[p] = gA[pix] * T[p];
-            kmax = std::max(kmax, last[p]);
         }
-        for (int k = kmax; k >= 0; --k) {
-            const int64_t s = s0 + k;
+        for (int kk = kmax; kk >= 0; --kk) {
+            const int64_t s = s0 + kk;
             const int32_t g = fid[s];
-            const float mx = pm[2 * g], my = pm[2 * g + 1];
+            const vi k = splati(kk);
+            const float my = pm[2 * g + 1];
             const float A = pcon[3 * g], B = pcon[3 * g + 1], C = pcon[3 * g + 2];
             const float o = po[g], z = pz[g];
             const float r = pcol[3 * g], gcol = pcol[3 * g + 1], b = pcol[3 * g + 2];
+            const vf dx = pm[2 * g] - px;
+            const vf Adx2 = A * dx * dx;
             int r0, r1;
             load_rows(my, pe[2 * g + 1], y0, H, r0, r1);
-            float v_mx = 0.f, v_my = 0.f, vA = 0.f, vB = 0.f, vC = 0.f;
-            float v_r = 0.f, v_g = 0.f, v_b = 0.f, v_o = 0.f, v_z = 0.f;
+            vf v_mx = splat(0.f), v_my = v_mx, vA = v_mx, vB = v_mx, vC = v_mx;
+            vf v_r = v_mx, v_g = v_mx, v_b = v_mx, v_o = v_mx, v_z = v_mx;
+            const vf zero = splat(0.f);
             for (int row = r0; row <= r1; ++row) {
                 const float dy = my - (static_cast<float>(y0 + row) + 0.5f);
-                const int base = row * kTile;
-#pragma omp simd reduction(+ : v_mx, v_my, vA, vB, vC, v_r, v_g, v_b, v_o, v_z)
-                for (int c = 0; c < kTile; ++c) {
-                    const int p = base + c;
-                    const float dx = mx - (static_cast<float>(x0 + c) + 0.5f);
-                    const float sigma = 0.5f * (A * dx * dx + C * dy * dy) + B * dx * dy;
-                    const float G = exp_neg(-sigma);
-                    const float raw = o * G;
-                    const float alpha = std::min(kMaxAlpha, raw);
-                    const bool hit = k <= last[p] && sigma >= 0.f && alpha >= kAlphaThreshold;
-                    const float ra = 1.f / (1.f - alpha);
-                    const float Tk = T[p] * ra;  // transmittance in front of this Gaussian
-                    const float w = alpha * Tk;
-                    const float front = r * gr[p] + gcol * gg[p] + b * gb[p] + z * gd[p];
-                    const float behind = Sr[p] * gr[p] + Sg[p] * gg[p] + Sb[p] * gb[p] + Sd[p] * gd[p];
-                    const float v_alpha = Tk * front - behind * ra + gaT[p] * ra;
-                    const float m = hit ? 1.f : 0.f;
-                    // min(0.99, raw) passes no gradient where it clamps
-                    const float mg = (hit && raw <= kMaxAlpha) ? 1.f : 0.f;
-                    const float v_sigma = -mg * raw * v_alpha;
-                    v_r += m * w * gr[p];
-                    v_g += m * w * gg[p];
-                    v_b += m * w * gb[p];
-                    v_z += m * w * gd[p];
-                    v_o += mg * G * v_alpha;
-                    v_mx += v_sigma * (A * dx + B * dy);
-                    v_my += v_sigma * (B * dx + C * dy);
-                    vA += 0.5f * v_sigma * dx * dx;
-                    vB += v_sigma * dx * dy;
-                    vC += 0.5f * v_sigma * dy * dy;
-                    Sr[p] += m * w * r;
-                    Sg[p] += m * w * gcol;
-                    Sb[p] += m * w * b;
-                    Sd[p] += m * w * z;
-                    T[p] = hit ? Tk : T[p];
-                }
+                const vf sigma = 0.5f * (Adx2 + C * dy * dy) + B * dx * dy;
+                const vf G = exp_neg(-sigma);
+                const vf raw = o * G;
+                const vf alpha = select(raw < kMaxAlpha, raw, splat(kMaxAlpha));
+                const vi hit = (k <= last[row]) & (sigma >= 0.f) & (alpha >= kAlphaThreshold);
+                const vf ra = 1.f / (1.f - alpha);
+                const vf Tk = T[row] * ra;  // transmittance in front of this Gaussian
+                const vf w = select(hit, alpha * Tk, zero);
+                const vf front = r * gr[row] + gcol * gg[row] + b * gb[row] + z * gd[row];
+                const vf behind = Sr[row] * gr[row] + Sg[row] * gg[row] + Sb[row] * gb[row] + Sd[row] * gd[row];
+                const vf v_alpha = Tk * front - behind * ra + gaT[row] * ra;
+                // min(0.99, raw) passes no gradient where it clamps
+                const vi grad_ok = hit & (raw <= kMaxAlpha);
+                const vf v_raw = select(grad_ok, v_alpha, zero);
+                const vf v_sigma = -raw * v_raw;
+                v_r += w * gr[row];
+                v_g += w * gg[row];
+                v_b += w * gb[row];
+                v_z += w * gd[row];
+                v_o += G * v_raw;
+                v_mx += v_sigma * (A * dx + B * dy);
+                v_my += v_sigma * (B * dx + C * dy);
+                vA += 0.5f * v_sigma * dx * dx;
+                vB += v_sigma * dx * dy;
+                vC += 0.5f * v_sigma * dy * dy;
+                Sr[row] += w * r;
+                Sg[row] += w * gcol;
+                Sb[row] += w * b;
+                Sd[row] += w * z;
+                T[row] = select(hit, Tk, T[row]);
             }
             float* out = buf + s * kGradStride;
-            out[0] = v_mx, out[1] = v_my, out[2] = vA, out[3] = vB, out[4] = vC;
-            out[5] = v_r, out[6] = v_g, out[7] = v_b, out[8] = v_o, out[9] = v_z;
+            out[0] = hsum(v_mx), out[1] = hsum(v_my), out[2] = hsum(vA), out[3] = hsum(vB), out[4] = hsum(vC);
+            out[5] = hsum(v_r), out[6] = hsum(v_g), out[7] = hsum(v_b), out[8] = hsum(v_o), out[9] = hsum(v_z);
         }
     }
 
@@ -669,10 +687,12 @@ std::vector<torch::Tensor> raster_backward(torch::Tensor means2d, torch::Tensor 
 }
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-    m.def("project_forward", &project_forward, "EWA projection of 3D Gaussians (forward)");
-    m.def("project_backward", &project_backward, "EWA projection of 3D Gaussians (backward)");
-    m.def("raster_forward", &raster_forward, "tile binning + alpha blending (forward)");
-    m.def("raster_backward", &raster_backward, "alpha blending (backward)");
+    // The kernels touch no Python objects: let other Python threads run meanwhile.
+    using release = py::call_guard<py::gil_scoped_release>;
+    m.def("project_forward", &project_forward, "EWA projection of 3D Gaussians (forward)", release());
+    m.def("project_backward", &project_backward, "EWA projection of 3D Gaussians (backward)", release());
+    m.def("raster_forward", &raster_forward, "tile binning + alpha blending (forward)", release());
+    m.def("raster_backward", &raster_backward, "alpha blending (backward)", release());
     m.def("has_openmp", []() {
 #ifdef _OPENMP
         return true;

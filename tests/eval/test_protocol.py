@@ -1,0 +1,81 @@
+"""The evaluation protocol: split membership, the JSON schema, per-time rows; render and metrics CLI."""
+
+import json
+
+import pytest
+
+from tests.conftest import write_tiny_scene
+from tracegs.cli import main
+from tracegs.config import make_config
+from tracegs.eval.protocol import evaluate_run, split_frames
+from tracegs.train.trainer import Trainer
+
+FIELDS = {"psnr", "mae_psnr", "ssim", "lpips_vgg", "lpips_alex", "frames"}
+
+
+@pytest.fixture(scope="module")
+def trained_run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("eval")
+    scene = write_tiny_scene(root / "scene", n_cams=3, n_times=5, size=32)
+    cfg = make_config("tiny", data=scene, run=root / "run", device="cpu")
+    Trainer(cfg, progress=False).train()
+    return scene, root / "run"
+
+
+def test_splits_follow_the_protocol(trained_run):
+    scene, _ = trained_run
+    splits = split_frames(scene, t_train_end=0.75)
+    assert splits["extrapolation"] and all(f.time > 0.75 for f in splits["extrapolation"])
+    assert len(splits["extrapolation"]) == 3  # every camera at t = 1.0
+    assert splits["interpolation"] and all(f.time <= 0.75 for f in splits["interpolation"])
+    assert {f.camera_id for f in splits["interpolation"]} == {2}  # the held-out camera only
+
+
+def test_eval_json_has_every_field(trained_run, tmp_path):
+    pytest.importorskip("tracegs.eval.lpips")
+    _, run = trained_run
+    out = tmp_path / "eval.json"
+    main(["eval", "--run", str(run), "--json", str(out)])
+    result = json.loads(out.read_text())
+    assert FIELDS <= set(result["interpolation"]) and FIELDS <= set(result["extrapolation"])
+    for key in ("method", "preset", "scene", "train_seconds", "iterations", "gaussians"):
+        assert key in result
+    rows = result["extrapolation"]["per_time"]
+    assert [r["t"] for r in rows] == [1.0] and {"t", "psnr", "ssim", "lpips_vgg"} <= set(rows[0])
+    assert result["interpolation"]["frames"] == 4 and result["extrapolation"]["frames"] == 3
+    # one time in the extrapolation split: its row is the split's MAE-PSNR
+    assert rows[0]["psnr"] == pytest.approx(result["extrapolation"]["mae_psnr"])
+
+
+def test_half_resolution_scoring(trained_run):
+    _, run = trained_run
+    result = evaluate_run(run, half_res=True, with_lpips=False, save_images=False, device="cpu")
+    assert result["extrapolation"]["frames"] == 3 and "lpips_vgg" not in result["extrapolation"]
+
+
+def test_render_future_time_and_video(trained_run, tmp_path):
+    import imageio.v3 as iio
+
+    _, run = trained_run
+    out = tmp_path / "future.png"
+    main(["render", "--run", str(run), "--time", "1.4", "--camera", "val:0", "--out", str(out)])
+    assert iio.imread(out).shape == (32, 32, 3)
+    main(["render", "--run", str(run), "--camera", "orbit:45", "--out", str(tmp_path / "orbit.png")])
+    assert iio.imread(tmp_path / "orbit.png").shape == (32, 32, 3)
+    video = tmp_path / "sweep.mp4"
+    main(["render", "--run", str(run), "--video", "--frames", "4", "--out", str(video)])
+    assert video.exists() or video.with_suffix(".gif").exists()
+
+
+def test_metrics_command(tmp_path, capsys):
+    import imageio.v3 as iio
+    import numpy as np
+
+    a = np.zeros((40, 40, 3), np.uint8)
+    b = a.copy()
+    b[:] = 26  # 26/255 offset: MSE = (26/255)^2
+    iio.imwrite(tmp_path / "a.png", a)
+    iio.imwrite(tmp_path / "b.png", b)
+    main(["metrics", str(tmp_path / "a.png"), str(tmp_path / "b.png"), "--json", str(tmp_path / "m.json")])
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["psnr"] == pytest.approx(-10 * np.log10((26 / 255) ** 2), abs=1e-4)
