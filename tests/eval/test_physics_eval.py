@@ -21,8 +21,24 @@ def _write_gt(root, w=2.0):
     np.savez(gt / "points.npz", points=np.concatenate([body, blade]), part_ids=np.repeat([1, 2], 200))
     common = {"pivot": [0, 0, 0], "linear_velocity": [0, 0, 0], "linear_acceleration": [0, 0, 0]}
     parts = [
-        {"name": "body", "id": 1, "type": "static", "axis": [0, 0, 1], "angular_velocity": 0.0, "angular_acceleration": 0.0, **common},
-        {"name": "blade", "id": 2, "type": "rotation", "axis": [0, 0, 1], "angular_velocity": w, "angular_acceleration": 0.0, **common},
+        {
+            "name": "body",
+            "id": 1,
+            "type": "static",
+            "axis": [0, 0, 1],
+            "angular_velocity": 0.0,
+            "angular_acceleration": 0.0,
+            **common,
+        },
+        {
+            "name": "blade",
+            "id": 2,
+            "type": "rotation",
+            "axis": [0, 0, 1],
+            "angular_velocity": w,
+            "angular_acceleration": 0.0,
+            **common,
+        },
     ]
     (gt / "motion.json").write_text(json.dumps({"parts": parts}))
     return np.concatenate([body, blade]), np.repeat([1, 2], 200)

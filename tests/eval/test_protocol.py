@@ -3,8 +3,8 @@
 import json
 
 import pytest
-
 from tests.conftest import write_tiny_scene
+
 from tracegs.cli import main
 from tracegs.config import make_config
 from tracegs.eval.protocol import evaluate_run, split_frames

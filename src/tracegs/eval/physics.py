@@ -54,7 +54,9 @@ def physics_errors(model, t_max: float, data: Path, times: list[float], radius: 
     state = model.state_at(t_max, t_max)
     x_start = state["means"]
     T_start = transforms(t_max)  # [P, 4, 4], rest -> world at t_max
-    world = np.concatenate([points[part_ids == p] @ T_start[p - 1][:3, :3].T + T_start[p - 1][:3, 3] for p in parts])
+    world = np.concatenate(
+        [points[part_ids == p] @ T_start[p - 1][:3, :3].T + T_start[p - 1][:3, 3] for p in parts]
+    )
     ids = np.concatenate([part_ids[part_ids == p] for p in parts])
     owner = assign_parts(x_start, world, ids, radius)
     result = {"radius": radius, "parts": {}}
