@@ -31,7 +31,7 @@ def hard_scene(n: int, width: int, height: int, *, seed: int = 0, sh_degree: int
         "means": ((p_cam - t) @ R).float(),
         "quats": torch.randn(4, 4, generator=g),
         "scales": torch.tensor([[2.0, 1.5, 1.0], [3.0, 2.0, 2.5], [0.8, 0.6, 0.7], [1.0, 0.9, 0.8]]),
-        "opacities": torch.tensor([0.3, 0.5, 0.6, 0.4]),
+        "opacities": torch.tensor([1.0, 0.95, 0.6, 0.4]),  # the first two saturate: alpha clamp, early stop
     }
     if sh_degree is None:
         extra["colors"] = torch.rand(4, 3, generator=g)

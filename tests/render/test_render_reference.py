@@ -42,7 +42,7 @@ def tiny_scene(dtype=torch.float64) -> dict:
         scales=torch.tensor(
             [[0.3, 0.2, 0.25]] * 4 + [[0.15, 0.25, 0.1], [0.2, 0.1, 0.3], [0.2] * 3, [0.1] * 3]
         ),
-        opacities=torch.tensor([0.97, 0.97, 0.97, 0.97, 0.6, 0.8, 0.9, 0.9]),
+        opacities=torch.tensor([1.0, 0.97, 0.97, 0.97, 0.6, 0.8, 0.9, 0.9]),
         colors=torch.rand(8, 3, generator=g),
         viewmat=viewmat,
         K=K,

@@ -13,6 +13,7 @@ early termination, like a trained 3DGS scene.
 
 from __future__ import annotations
 
+import ctypes
 import gc
 import json
 import math
@@ -104,11 +105,21 @@ def _rss_mb() -> float:
         return peak / 2**20 if sys.platform == "darwin" else peak / 1024
 
 
+def _release_free_memory() -> None:
+    """Hand freed heap memory back to the OS (glibc), so that RSS measures live memory again."""
+    gc.collect()
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
 class _PeakMemory:
     """Highest RSS above the starting RSS while the block runs, sampled every millisecond from a
     thread (the C++ kernels release the GIL, so the sampler sees their allocations too)."""
 
     def __enter__(self):
+        _release_free_memory()
         self.base = self.peak = _rss_mb()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._sample, daemon=True)
@@ -153,7 +164,6 @@ def _time_backend(scene: dict, backend: str, repeats: int, warmup: int) -> dict:
             fn()
             samples.append((time.perf_counter() - t0) * 1e3)
         timings[name] = statistics.median(samples)
-    gc.collect()
     with _PeakMemory() as mem:  # one extra forward + backward, untimed
         fwd_bwd()
     return dict(
@@ -175,10 +185,9 @@ def run_raster_bench(
     """Time forward and forward + backward of every backend on every (width, count) workload.
 
     Median of ``repeats`` runs after one warm-up; the reference backend gets fewer repeats when it
-    is slow (under ~10 s per workload). ``peak_mb`` is the peak resident memory one forward +
-    backward adds on top of what the process held before it (the allocator may reuse memory kept
-    from earlier workloads, so small values are lower bounds). Returns one record per backend and
-    workload.
+    is slow (under ~10 s per workload). ``peak_mb`` is the peak resident memory that one forward +
+    backward adds on top of what the process held before it (freed heap memory is returned to
+    the OS first, glibc only; sampled every ms). Returns one record per backend and workload.
     """
     backends = list(backends) if backends is not None else available_backends("cpu")
     records = []
