@@ -99,16 +99,19 @@ class Metrics:
 
 @dataclass
 class Bench:
-    """Benchmarks: `raster` (rasteriser backends), `train` (TRACE/DefGS quality and speed on scenes)."""
+    """Benchmarks: `raster` (rasteriser backends), `fields` (MLP cost), `methods` (TRACE, TRACE_4dgs, DefGS),
+    `ablations` (the paper's Table 4); tables go to docs/BENCHMARKS.md."""
 
-    what: tyro.conf.Positional[Literal["raster", "train", "fields"]]
+    what: tyro.conf.Positional[Literal["raster", "fields", "methods", "ablations"]]
     json: Path | None = None
     """Write the records as JSON."""
     out: Path = Path("runs/bench")
     """Working folder for scenes and runs (train benchmark)."""
     preset: str = "cpu-fast"
     scenes: tuple[str, ...] = ("fan",)
-    """Synthetic scenes for the train benchmark."""
+    """Synthetic scene names or scene folders (methods and ablations)."""
+    resolution: int = 128
+    """Image size of synthesised scenes."""
 
 
 def _dump(result, path: Path | None) -> None:
@@ -180,9 +183,13 @@ def main(argv: list[str] | None = None) -> None:
 
             records = run_raster_bench(json_path=a.json)
         else:
-            from .bench import run_field_bench, run_train_bench
+            from .bench import ABLATIONS, METHODS, run_field_bench, run_variant_table
 
-            records = run_field_bench() if a.what == "fields" else run_train_bench(a.out, a.scenes, a.preset)
+            if a.what == "fields":
+                records = run_field_bench()
+            else:
+                variants = METHODS if a.what == "methods" else ABLATIONS
+                records = run_variant_table(a.what, variants, a.out, a.scenes, a.preset, a.resolution)
             if a.json is not None:
                 _dump(records, a.json)
         print(json.dumps(records, indent=2)[:4000])

@@ -62,8 +62,12 @@ class DynamicStageConfig:
     """The sampled time range grows in eighths of the training span over this many dynamic steps."""
     warmup_deformation_steps: int = 0
     """Dynamic steps rendered with f_defo alone before the physics path is switched on."""
-    extrapolation_requery: bool = True
-    """Extrapolate by re-querying f_trd at every step (Alg. 1 applied progressively); else query once at t_max."""
+    handover_frames: float = 4.0
+    """Frames before t_max from which the physics takes over from f_defo when rendering later times
+    (the released code starts at 0.65-0.7 for data ending at 0.75; 0 = exactly t_max)."""
+    extrapolation_requery: bool = False
+    """Re-query f_trd at every step when extrapolating (Alg. 1 applied progressively); default: query once at
+    the handover time and let the constant accelerations evolve the parameters (measured better on fan)."""
     freeze_static_threshold: float = 0.0
     """Gaussians whose deformation stays below this displacement (scene units) are frozen when extrapolating (0 = off)."""
 
@@ -214,3 +218,14 @@ def load_config(path: Path) -> TrainConfig:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no config.json here (is this a tracegs run folder?)")
     return config_from_dict(TrainConfig, json.loads(path.read_text()))
+
+
+def apply_overrides(cfg: TrainConfig, overrides: dict) -> TrainConfig:
+    """Set fields by name; nested fields as ``"dynamic__dt_frames"`` (section, double underscore, field)."""
+    for key, value in overrides.items():
+        section, _, name = key.rpartition("__")
+        target = getattr(cfg, section) if section else cfg
+        if not hasattr(target, name):
+            raise ValueError(f"unknown config field {key!r}")
+        setattr(target, name, value)
+    return cfg

@@ -6,7 +6,7 @@ import json
 import pytest
 import torch
 
-from tracegs.config import PRESETS, make_config
+from tracegs.config import PRESETS, apply_overrides, make_config
 from tracegs.train.trainer import Trainer, load_run
 
 
@@ -15,11 +15,7 @@ def _cfg(scene, run, preset="tiny", **kw):
     cfg.init_points = 300
     cfg.checkpoint_every = 1
     cfg.densify = dataclasses.replace(cfg.densify, refine_start=0, refine_every=1, reset_every=0)
-    for key, value in kw.items():
-        target, _, name = key.rpartition("__")
-        obj = getattr(cfg, target) if target else cfg
-        setattr(obj, name, value)
-    return cfg
+    return apply_overrides(cfg, kw)
 
 
 @pytest.mark.parametrize("preset", sorted(PRESETS))

@@ -100,13 +100,25 @@ class TraceModel(nn.Module):
     # ----- any time, past or future -----------------------------------------------------------
     @torch.no_grad()
     def state_at(self, t: float, t_max: float) -> dict[str, torch.Tensor]:
-        """Gaussians at time ``t``: f_defo up to ``t_max``, then the learned physics into the future."""
+        """Gaussians at time ``t``: f_defo up to the handover time, then the learned physics.
+
+        The handover is ``t_max`` minus ``dynamic.handover_frames`` frame intervals: f_defo is least
+        constrained at the end of the training span, so (as the authors' code does) the physics takes
+        over a few frames before the data ends.
+        """
         g = self.gaussians
         if self.cfg.method == "static":
             return {"means": g["means"], "quats": g["quats"], "scales": g["scales"]}
-        if self.dynamics is None or t <= t_max:
-            return self.deform(t) if self.deformation is not None else self._physics_from(0.0, t)
-        return self._physics_from(t_max, t)
+        if self.dynamics is None:
+            return self.deform(t)
+        if self.deformation is None:
+            return self._physics_from(0.0, t)
+        t0 = self.handover_time(t_max)
+        return self.deform(t) if t <= t0 else self._physics_from(t0, t)
+
+    def handover_time(self, t_max: float) -> float:
+        """Last time rendered by f_defo alone; later times are integrated from it."""
+        return max(0.0, t_max - self.cfg.dynamic.handover_frames * self.dt_max)
 
     def _physics_from(self, t0: float, t: float) -> dict[str, torch.Tensor]:
         """Deform to ``t0`` and chain integration steps of at most ``dt_max`` to ``t`` (forward or back)."""

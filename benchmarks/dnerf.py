@@ -1,0 +1,39 @@
+"""TRACE vs DefGS on the D-NeRF scenes of ../shared/data (monocular; train on time <= 0.75).
+
+Usage: .venv/bin/python benchmarks/dnerf.py [--scenes bouncingballs] [--downscale 2] [--preset cpu-fast]
+The data is not part of the repository (see ../shared/data/README.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import torch
+
+from tracegs.bench import METHODS, run_variant_table
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--root", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data" / "dnerf")
+    ap.add_argument("--scenes", nargs="+", default=["bouncingballs"])
+    ap.add_argument("--downscale", type=int, default=2)
+    ap.add_argument("--preset", default="cpu-fast")
+    ap.add_argument("--methods", nargs="+", default=["TRACE", "DefGS"])
+    ap.add_argument("--out", type=Path, default=Path("runs/bench"))
+    args = ap.parse_args()
+    torch.set_num_threads(2)
+    scenes = tuple(str(args.root / s) for s in args.scenes)
+    missing = [s for s in scenes if not Path(s, "transforms_train.json").is_file()]
+    if missing:
+        raise SystemExit(f"D-NeRF scene(s) not found: {', '.join(missing)}")
+    variants = {m: METHODS[m] for m in args.methods}
+    overrides = {"downscale": args.downscale, "t_train_end": 0.75}
+    rows = run_variant_table("dnerf", variants, args.out, scenes, args.preset, 800 // (2 * args.downscale), overrides)
+    for r in rows:
+        print(r["scene"], r["variant"], f"interp {r['interp_psnr']:.2f} dB", f"extrap {r['extrap_psnr']:.2f} dB")
+
+
+if __name__ == "__main__":
+    main()

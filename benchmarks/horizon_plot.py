@@ -1,0 +1,30 @@
+"""PSNR against future time for several evaluated runs, and a GT | run | run image strip.
+
+Usage: .venv/bin/python benchmarks/horizon_plot.py --out docs/figures/fan LABEL=RUN [LABEL=RUN ...]
+(each RUN evaluated with `tracegs eval` and its frames saved, the default).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from tracegs.export.plots import horizon_plot, image_strip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("runs", nargs="+", help="LABEL=RUN_FOLDER")
+    ap.add_argument("--out", type=Path, required=True, help="output prefix (…_horizon.png, …_strip.png)")
+    ap.add_argument("--camera", type=int, default=0)
+    args = ap.parse_args()
+    runs = dict(item.split("=", 1) for item in args.runs)
+    runs = {k: Path(v) for k, v in runs.items()}
+    data = Path(json.loads((next(iter(runs.values())) / "eval.json").read_text())["scene"])
+    print(horizon_plot(runs, Path(f"{args.out}_horizon.png"), title=data.name))
+    print(image_strip(data, runs, Path(f"{args.out}_strip.png"), camera_id=args.camera))
+
+
+if __name__ == "__main__":
+    main()

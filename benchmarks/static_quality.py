@@ -1,0 +1,66 @@
+"""Static 3DGS (the paper's first stage) on a generated scene at t = 0: PSNR on held-out views.
+
+Trains `--method static` on the training cameras at t = 0 of a synthetic scene and scores the held-out
+(val) cameras at t = 0. Usage: .venv/bin/python benchmarks/static_quality.py [--scene fan] [--preset cpu-fast]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import torch
+
+from tracegs.bench import scene_folder
+from tracegs.bench_report import machine_description, markdown_table, update_section
+from tracegs.config import make_config
+from tracegs.data.blender import load_image, load_scene
+from tracegs.eval.metrics import mae_psnr, mse, ssim
+from tracegs.train.trainer import Trainer, load_run
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--scene", default="fan")
+    ap.add_argument("--preset", default="cpu-fast")
+    ap.add_argument("--iterations", type=int, default=3000)
+    ap.add_argument("--out", type=Path, default=Path("runs/bench"))
+    args = ap.parse_args()
+    torch.set_num_threads(2)
+    data = scene_folder(args.out, args.scene, 128)
+    run = args.out / "runs" / f"{args.scene}_static_{args.preset}"
+    cfg = make_config(args.preset, data=data, run=run, method="static", static_iterations=args.iterations)
+    summary = Trainer(cfg, progress=False).train()
+    model, cfg, meta = load_run(run, "cpu")
+    scene = load_scene(data, "val")
+    background = torch.tensor(scene.background)
+    mses, ssims = [], []
+    for f in scene.frames:
+        if f.time != 0.0:
+            continue
+        pred = model.render(model.state_at(0.0, meta["t_max"]), f.camera, cfg.sh_degree, background).image.clamp(0, 1)
+        gt = load_image(f, scene.background)
+        mses.append(float(mse(pred, gt)))
+        ssims.append(float(ssim(pred, gt)))
+    row = {
+        "scene": args.scene,
+        "preset": args.preset,
+        "iterations": summary["iterations"],
+        "gaussians": summary["gaussians"],
+        "heldout_views": len(mses),
+        "psnr": mae_psnr(mses),
+        "ssim": sum(ssims) / len(ssims),
+        "train_s": summary["train_seconds"],
+    }
+    print(json.dumps(row, indent=2))
+    body = (
+        "## Static reconstruction (stage 1) on a generated scene, held-out views at t = 0\n\n"
+        f"`.venv/bin/python benchmarks/static_quality.py --scene {args.scene} --preset {args.preset}` "
+        f"on {machine_description()}.\n\n" + markdown_table([row], list(row))
+    )
+    update_section("static-quality", body)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,51 @@
+"""Figures for reports: PSNR against future time for several runs, and GT | method image strips."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+
+def horizon_plot(runs: dict[str, Path], out: Path, title: str = "") -> Path:
+    """Per-time extrapolation PSNR of each run (label -> run folder with eval.json) as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.2), dpi=120)
+    for label, run in runs.items():
+        rows = json.loads((Path(run) / "eval.json").read_text())["extrapolation"]["per_time"]
+        ax.plot([r["t"] for r in rows], [r["psnr"] for r in rows], marker="o", ms=3, label=label)
+    ax.set_xlabel("time t (training ends before the first point)")
+    ax.set_ylabel("PSNR (dB, all cameras)")
+    ax.set_title(title or "Extrapolation quality against horizon")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out)
+    plt.close(fig)
+    return out
+
+
+def image_strip(data: Path, runs: dict[str, Path], out: Path, camera_id: int = 0, count: int = 4) -> Path:
+    """Rows = GT and each run's rendering (from ``eval/extrapolation``), columns = future times."""
+    import imageio.v3 as iio
+
+    from ..data.blender import load_image
+    from ..eval.protocol import split_frames
+
+    first = json.loads((Path(next(iter(runs.values()))) / "eval.json").read_text())
+    frames = [f for f in split_frames(data, first["t_train_end"])["extrapolation"] if f.camera_id in (camera_id, None)]
+    frames = sorted(frames, key=lambda f: f.time)
+    picks = [frames[round(k * (len(frames) - 1) / max(count - 1, 1))] for k in range(count)] if frames else []
+    rows = [[load_image(f).numpy() for f in picks]]
+    for run in runs.values():
+        rows.append([iio.imread(Path(run) / "eval" / "extrapolation" / f"{f.image_path.stem}.png")[..., :3] / 255.0 for f in picks])
+    grid = np.concatenate([np.concatenate(r, axis=1) for r in rows], axis=0)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    iio.imwrite(out, (np.clip(grid, 0, 1) * 255 + 0.5).astype(np.uint8))
+    return out
