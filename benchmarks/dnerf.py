@@ -16,7 +16,9 @@ from tracegs.bench import METHODS, run_variant_table
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--root", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data" / "dnerf")
+    ap.add_argument(
+        "--root", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data" / "dnerf"
+    )
     ap.add_argument("--scenes", nargs="+", default=["bouncingballs"])
     ap.add_argument("--downscale", type=int, default=2)
     ap.add_argument("--preset", default="cpu-fast")
@@ -30,9 +32,13 @@ def main() -> None:
         raise SystemExit(f"D-NeRF scene(s) not found: {', '.join(missing)}")
     variants = {m: METHODS[m] for m in args.methods}
     overrides = {"downscale": args.downscale, "t_train_end": 0.75}
-    rows = run_variant_table("dnerf", variants, args.out, scenes, args.preset, 800 // (2 * args.downscale), overrides)
+    rows = run_variant_table(
+        "dnerf", variants, args.out, scenes, args.preset, 800 // (2 * args.downscale), overrides
+    )
     for r in rows:
-        print(r["scene"], r["variant"], f"interp {r['interp_psnr']:.2f} dB", f"extrap {r['extrap_psnr']:.2f} dB")
+        print(
+            r["scene"], r["variant"], f"interp {r['interp_psnr']:.2f} dB", f"extrap {r['extrap_psnr']:.2f} dB"
+        )
 
 
 if __name__ == "__main__":

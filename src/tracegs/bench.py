@@ -157,7 +157,9 @@ def run_variant_table(
             run = Path(out) / "runs" / f"{Path(scene).name}_{slug}_{preset}"
             cfg = apply_overrides(make_config(preset, data=data, run=run), {**(overrides or {}), **variant})
             done = run / "eval.json"
-            same = (run / "config.json").is_file() and json.loads((run / "config.json").read_text()) == config_to_dict(cfg)
+            same = (run / "config.json").is_file() and json.loads(
+                (run / "config.json").read_text()
+            ) == config_to_dict(cfg)
             if not (done.is_file() and same):
                 summary = Trainer(cfg, progress=False).train()
                 result = evaluate_run(run, save_images=False)

@@ -158,8 +158,8 @@ def load_scene(root: str | Path, split: str = "train", downscale: int = 1) -> Sc
     )
 
 
-def load_image(frame: Frame, background=(1.0, 1.0, 1.0)) -> torch.Tensor:
-    """Read a frame's image as float [H, W, 3] in [0, 1], RGBA composited on ``background``."""
+def load_rgba(frame: Frame) -> torch.Tensor:
+    """Read a frame's image as float [H, W, 4] in [0, 1] (alpha = 1 for images without one)."""
     path = frame.image_path
     if not path.is_file():
         raise DatasetError(f"{path}: image not found")
@@ -171,18 +171,26 @@ def load_image(frame: Frame, background=(1.0, 1.0, 1.0)) -> torch.Tensor:
     img = img / (65535.0 if arr.dtype == np.uint16 else 255.0 if arr.dtype == np.uint8 else 1.0)
     if img.ndim == 2:
         img = img[..., None].expand(-1, -1, 3)
-    if img.shape[-1] == 4:
-        alpha = img[..., 3:]
-        img = img[..., :3] * alpha + torch.tensor(background, dtype=img.dtype) * (1 - alpha)
-    img = img[..., :3]
+    if img.shape[-1] == 3:
+        img = torch.cat([img, torch.ones_like(img[..., :1])], dim=-1)
     H, W = frame.height, frame.width
     if img.shape[:2] != (H, W):
         fy, fx = img.shape[0] / H, img.shape[1] / W
         if fx != fy or fx != int(fx):
             raise DatasetError(f"{path}: image is {img.shape[1]}x{img.shape[0]}, expected {W}x{H}")
-        img = torch.nn.functional.interpolate(img.permute(2, 0, 1)[None], size=(H, W), mode="area")
-        img = img[0].permute(1, 2, 0)
-    return img.contiguous()
+        # box-filter premultiplied colour so that edges do not pick up the hidden colour of empty pixels
+        premult = torch.cat([img[..., :3] * img[..., 3:], img[..., 3:]], dim=-1)
+        small = torch.nn.functional.interpolate(premult.permute(2, 0, 1)[None], size=(H, W), mode="area")
+        small = small[0].permute(1, 2, 0)
+        img = torch.cat([small[..., :3] / small[..., 3:].clamp_min(1e-8), small[..., 3:]], dim=-1)
+    return img[..., :4].contiguous()
+
+
+def load_image(frame: Frame, background=(1.0, 1.0, 1.0)) -> torch.Tensor:
+    """Read a frame's image as float [H, W, 3] in [0, 1], RGBA composited on ``background``."""
+    rgba = load_rgba(frame)
+    alpha = rgba[..., 3:]
+    return (rgba[..., :3] * alpha + torch.tensor(background, dtype=rgba.dtype) * (1 - alpha)).contiguous()
 
 
 def available_splits(root: str | Path) -> list[str]:

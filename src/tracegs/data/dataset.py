@@ -10,13 +10,14 @@ from pathlib import Path
 
 import torch
 
-from .blender import SceneSplit, load_image, load_scene
+from .blender import SceneSplit, load_rgba, load_scene
 from .cameras import Camera
 
 
 @dataclass
 class View:
     image: torch.Tensor  # [H, W, 3] float in [0, 1], composited on the scene background
+    alpha: torch.Tensor  # [H, W, 1] coverage (1 for images without alpha)
     camera: Camera
     time: float
     camera_id: int | None
@@ -41,23 +42,31 @@ class ViewDataset:
             for f in self.scene.frames
             if (t_max is None or f.time <= t_max + 1e-9) and (t_min is None or f.time > t_min + 1e-9)
         ]
-        self.views = [
-            View(
-                image=load_image(f, self.scene.background).to(device),
-                camera=f.camera.to(device),
-                time=f.time,
-                camera_id=f.camera_id,
-                name=f.image_path.stem,
-            )
-            for f in frames
-        ]
         self.background = torch.tensor(self.scene.background, dtype=torch.float32, device=device)
+        self.views = []
+        for f in frames:
+            rgba = load_rgba(f).to(device)
+            alpha = rgba[..., 3:]
+            self.views.append(
+                View(
+                    image=rgba[..., :3] * alpha + self.background * (1 - alpha),
+                    alpha=alpha,
+                    camera=f.camera.to(device),
+                    time=f.time,
+                    camera_id=f.camera_id,
+                    name=f.image_path.stem,
+                )
+            )
 
     def __len__(self) -> int:
         return len(self.views)
 
     def __getitem__(self, i: int) -> View:
         return self.views[i]
+
+    def target(self, view: View, background: torch.Tensor) -> torch.Tensor:
+        """The view's image composited on another ``background`` [3] (random-background training)."""
+        return view.image + (background - self.background) * (1 - view.alpha)
 
     @property
     def times(self) -> torch.Tensor:

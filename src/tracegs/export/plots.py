@@ -39,12 +39,21 @@ def image_strip(data: Path, runs: dict[str, Path], out: Path, camera_id: int = 0
     from ..eval.protocol import split_frames
 
     first = json.loads((Path(next(iter(runs.values()))) / "eval.json").read_text())
-    frames = [f for f in split_frames(data, first["t_train_end"])["extrapolation"] if f.camera_id in (camera_id, None)]
+    frames = [
+        f
+        for f in split_frames(data, first["t_train_end"])["extrapolation"]
+        if f.camera_id in (camera_id, None)
+    ]
     frames = sorted(frames, key=lambda f: f.time)
     picks = [frames[round(k * (len(frames) - 1) / max(count - 1, 1))] for k in range(count)] if frames else []
     rows = [[load_image(f).numpy() for f in picks]]
     for run in runs.values():
-        rows.append([iio.imread(Path(run) / "eval" / "extrapolation" / f"{f.image_path.stem}.png")[..., :3] / 255.0 for f in picks])
+        rows.append(
+            [
+                iio.imread(Path(run) / "eval" / "extrapolation" / f"{f.image_path.stem}.png")[..., :3] / 255.0
+                for f in picks
+            ]
+        )
     grid = np.concatenate([np.concatenate(r, axis=1) for r in rows], axis=0)
     out.parent.mkdir(parents=True, exist_ok=True)
     iio.imwrite(out, (np.clip(grid, 0, 1) * 255 + 0.5).astype(np.uint8))

@@ -19,7 +19,7 @@ from tqdm import tqdm
 from ..config import TrainConfig, config_to_dict, load_config, save_config
 from ..data.blender import load_scene
 from ..data.dataset import ViewDataset, frame_interval
-from ..models.gaussians import empty_like_params, random_gaussians
+from ..models.gaussians import create_gaussians, empty_like_params, random_gaussians
 from ..models.trace import TraceModel
 from ..utils import atomic_torch_save, atomic_write_text, resolve_device, seed_everything
 from .losses import photometric_loss
@@ -32,6 +32,17 @@ def default_aabb(cfg: TrainConfig, data: ViewDataset) -> torch.Tensor:
         return data.scene.aabb.float()
     e = cfg.init_extent
     return torch.tensor([[-e, -e, -e], [e, e, e]], dtype=torch.float32)
+
+
+def initial_gaussians(cfg: TrainConfig, aabb: torch.Tensor, device) -> torch.nn.ParameterDict:
+    """From ``points3d.ply`` in the scene folder if there is one (SfM points), else random in ``aabb``."""
+    ply = Path(cfg.data) / "points3d.ply"
+    if ply.is_file():
+        from ..export.ply import read_points
+
+        points, colors = read_points(ply)
+        return create_gaussians(points.to(device), colors.to(device), cfg.sh_degree)
+    return random_gaussians(cfg.init_points, aabb, cfg.sh_degree)
 
 
 class Trainer:
@@ -55,7 +66,7 @@ class Trainer:
         self.extent = scene_extent_from_cameras(self.data.camera_centers())
         self.aabb = default_aabb(cfg, self.data).to(self.device)
         self.static_views = self._static_views()
-        gaussians = random_gaussians(cfg.init_points, self.aabb, cfg.sh_degree, generator=None)
+        gaussians = initial_gaussians(cfg, self.aabb, self.device)
         self.model = TraceModel(cfg, gaussians, self.aabb, self.dt_frame).to(self.device)
         self.optimizers = gaussian_optimizers(self.model.gaussians, cfg.optim, self.extent)
         self.field_opt = field_optimizer(self.model.field_parameters(), cfg.optim)
