@@ -147,6 +147,7 @@ def cpu_fast() -> TrainConfig:
         static_iterations=1500,
         dynamic_iterations=8000,
         bf16=cpu_has_amx_bf16(),
+        random_background=True,
         init_points=5000,
         sh_degree=1,
         sh_degree_interval=500,

@@ -125,7 +125,12 @@ class Trainer:
             physics = dyn_step >= cfg.dynamic.warmup_deformation_steps
             state = self.model.training_state(self._t_prime(view.time), view.time, physics=physics)
         t_fields = time.perf_counter()
-        out = self.model.render(state, view.camera, self.sh_degree(), self.data.background)
+        if cfg.random_background:
+            background = torch.rand(3, device=self.device)
+            target = self.data.target(view, background)
+        else:
+            background, target = self.data.background, view.image
+        out = self.model.render(state, view.camera, self.sh_degree(), background)
         info = {
             "means2d": out.means2d,
             "radii": out.radii,
@@ -133,7 +138,7 @@ class Trainer:
             "height": view.camera.height,
         }
         self.strategy.step_pre_backward(info)
-        losses = photometric_loss(out.image, view.image, cfg.optim.ssim_weight)
+        losses = photometric_loss(out.image, target, cfg.optim.ssim_weight)
         t_render = time.perf_counter()
         losses["loss"].backward()
         t_backward = time.perf_counter()
