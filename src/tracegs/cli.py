@@ -112,6 +112,8 @@ class Bench:
     """Synthetic scene names or scene folders (methods and ablations)."""
     resolution: int = 128
     """Image size of synthesised scenes."""
+    variants: tuple[str, ...] = ()
+    """Subset of rows to run (e.g. TRACE DefGS, or dt=1 "no f_defo"); empty = all."""
 
 
 def _dump(result, path: Path | None) -> None:
@@ -189,6 +191,10 @@ def main(argv: list[str] | None = None) -> None:
                 records = run_field_bench()
             else:
                 variants = METHODS if a.what == "methods" else ABLATIONS
+                unknown = set(a.variants) - set(variants)
+                if unknown:
+                    raise SystemExit(f"unknown variants {sorted(unknown)}; choose from {list(variants)}")
+                variants = {k: v for k, v in variants.items() if not a.variants or k in a.variants}
                 records = run_variant_table(a.what, variants, a.out, a.scenes, a.preset, a.resolution)
             if a.json is not None:
                 _dump(records, a.json)
