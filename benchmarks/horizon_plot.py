@@ -7,9 +7,9 @@ Usage: .venv/bin/python benchmarks/horizon_plot.py --out docs/figures/fan LABEL=
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
+from tracegs.config import load_config
 from tracegs.export.plots import horizon_plot, image_strip
 
 
@@ -21,7 +21,7 @@ def main() -> None:
     args = ap.parse_args()
     runs = dict(item.split("=", 1) for item in args.runs)
     runs = {k: Path(v) for k, v in runs.items()}
-    data = Path(json.loads((next(iter(runs.values())) / "eval.json").read_text())["scene"])
+    data = Path(load_config(next(iter(runs.values())) / "config.json").data)
     print(horizon_plot(runs, Path(f"{args.out}_horizon.png"), title=data.name))
     print(image_strip(data, runs, Path(f"{args.out}_strip.png"), camera_id=args.camera))
 

@@ -162,7 +162,7 @@ def run_variant_table(
             ) == config_to_dict(cfg)
             if not (done.is_file() and same):
                 summary = Trainer(cfg, progress=False).train()
-                result = evaluate_run(run, save_images=False)
+                result = evaluate_run(run)
                 done.write_text(json.dumps(result, indent=2))
             else:
                 summary = json.loads((run / "summary.json").read_text())
