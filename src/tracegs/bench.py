@@ -118,6 +118,10 @@ ABLATIONS = {
 }
 
 
+def _flags(overrides: dict | None) -> str:
+    return "".join(f" --{k.replace('_', '-')} {v}" for k, v in (overrides or {}).items())
+
+
 def scene_folder(out: Path, scene: str, resolution: int) -> Path:
     """A synthetic scene by name (rendered once into ``out/scenes``) or an existing scene folder."""
     if Path(scene).is_dir():
@@ -190,12 +194,13 @@ def run_variant_table(
         timing_rows = [{"scene": r["scene"], "variant": r["variant"], **r["ms_per_it"]} for r in records]
         body = (
             f"## {name} ({preset}, {resolution} px)\n\n"
-            f"`tracegs bench {name} --scenes {' '.join(scenes)} --preset {preset}` on {machine_description()}.\n"
+            f"`tracegs bench {name} --scenes {' '.join(scenes)} --preset {preset}{_flags(overrides)}` "
+            f"on {machine_description()}.\n"
             "PSNR is MAE-PSNR (the paper's), LPIPS is VGG; `paper_extrap` is the paper's extrapolation "
             "PSNR / SSIM / LPIPS for the corresponding row (Dynamic Multipart mean; its scenes differ from ours).\n\n"
             + markdown_table(records, cols)
             + "\n\nTime per training iteration (ms), averaged over the whole run:\n\n"
             + markdown_table(timing_rows, list(timing_rows[0].keys()))
         )
-        update_section(f"{name}-{preset}", body)
+        update_section(f"{name}-{preset}{_flags(overrides).replace(' ', '')}", body)
     return records

@@ -112,6 +112,8 @@ class Bench:
     """Synthetic scene names or scene folders (methods and ablations)."""
     resolution: int = 128
     """Image size of synthesised scenes."""
+    dynamic_iterations: int | None = None
+    """Override the preset's dynamic iterations (a shorter schedule for large tables)."""
     variants: tuple[str, ...] = ()
     """Subset of rows to run (e.g. TRACE DefGS, or dt=1 "no f_defo"); empty = all."""
 
@@ -195,7 +197,12 @@ def main(argv: list[str] | None = None) -> None:
                 if unknown:
                     raise SystemExit(f"unknown variants {sorted(unknown)}; choose from {list(variants)}")
                 variants = {k: v for k, v in variants.items() if not a.variants or k in a.variants}
-                records = run_variant_table(a.what, variants, a.out, a.scenes, a.preset, a.resolution)
+                overrides = (
+                    {} if a.dynamic_iterations is None else {"dynamic_iterations": a.dynamic_iterations}
+                )
+                records = run_variant_table(
+                    a.what, variants, a.out, a.scenes, a.preset, a.resolution, overrides
+                )
             if a.json is not None:
                 _dump(records, a.json)
         print(json.dumps(records, indent=2)[:4000])
