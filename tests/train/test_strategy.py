@@ -75,3 +75,22 @@ def test_remove_and_refine_schedule():
     # rows 0, 1 are transparent -> they and their clones are pruned
     assert report["pruned"] == 4
     assert params["means"].shape[0] == 5 + 4 - 4
+
+
+def test_refinement_stops_by_a_fraction_of_short_runs():
+    cfg = DensifyConfig(refine_stop=4500, refine_stop_fraction=0.5)
+    assert DefaultStrategy(cfg, 1.0, total_steps=9500).refine_stop == 4500
+    assert DefaultStrategy(cfg, 1.0, total_steps=3500).refine_stop == 1750
+    assert DefaultStrategy(cfg, 1.0).refine_stop == 4500
+    params, opts = _setup()
+    strategy = DefaultStrategy(
+        DensifyConfig(refine_start=0, refine_every=1, reset_every=1), 1.0, total_steps=4
+    )
+    before = params["opacities"].detach().clone()
+    means2d = torch.zeros(6, 2, requires_grad=True)
+    means2d.sum().backward()
+    info = {"means2d": means2d, "radii": torch.ones(6), "width": 10, "height": 10}
+    assert (
+        strategy.step_post_backward(params, opts, strategy.initialize_state(), step=2, render_info=info) == {}
+    )
+    assert torch.equal(params["opacities"], before)  # no reset after the stop either

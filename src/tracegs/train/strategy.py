@@ -43,6 +43,9 @@ class DensifyConfig:
     """Relative to the scene extent: larger Gaussians are removed (after the first opacity reset)."""
     max_gaussians: int = 1_000_000
     """Growth stops at this count (a budget for slow devices)."""
+    refine_stop_fraction: float = 0.5
+    """Densification and opacity resets also stop after this fraction of the run's iterations, so that a
+    shortened run (e.g. ``--dynamic-iterations 2000``) still ends with a phase of plain optimisation."""
 
 
 @dataclass
@@ -51,6 +54,14 @@ class DefaultStrategy:
 
     cfg: DensifyConfig
     scene_extent: float
+    total_steps: int | None = None
+    """Iterations of the whole run; bounds ``refine_stop`` by ``refine_stop_fraction`` of it."""
+
+    @property
+    def refine_stop(self) -> int:
+        if self.total_steps is None:
+            return self.cfg.refine_stop
+        return min(self.cfg.refine_stop, int(self.cfg.refine_stop_fraction * self.total_steps))
 
     def initialize_state(self) -> dict[str, Any]:
         return {"grad2d": None, "count": None}
@@ -71,7 +82,7 @@ class DefaultStrategy:
     ) -> dict[str, int]:
         """Accumulate gradients of this step; refine on schedule. Returns counts of what changed."""
         cfg = self.cfg
-        if step >= cfg.refine_stop:
+        if step >= self.refine_stop:
             return {}
         self._accumulate(params, state, render_info)
         report: dict[str, int] = {}

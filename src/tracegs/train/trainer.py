@@ -70,7 +70,7 @@ class Trainer:
         self.model = TraceModel(cfg, gaussians, self.aabb, self.dt_frame).to(self.device)
         self.optimizers = gaussian_optimizers(self.model.gaussians, cfg.optim, self.extent)
         self.field_opt = field_optimizer(self.model.field_parameters(), cfg.optim)
-        self.strategy = DefaultStrategy(cfg.densify, self.extent)
+        self.strategy = DefaultStrategy(cfg.densify, self.extent, cfg.total_iterations)
         self.strategy_state = self.strategy.initialize_state()
         self.step, self.train_seconds = 0, 0.0
         self.timings: dict[str, float] = defaultdict(float)
