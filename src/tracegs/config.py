@@ -58,8 +58,10 @@ class DynamicStageConfig:
     """Ablation (4): when false, f_trd is queried at the target time and its velocities used directly."""
     straight_through: bool = True
     """Render the physics position with f_defo's gradient passed straight through (x_phys + dx - dx.detach())."""
-    time_growth_steps: int = 7000
-    """The sampled time range grows in eighths of the training span over this many dynamic steps."""
+    time_growth_fraction: float = 0.19
+    """The sampled time range grows in eighths of the training span over this fraction of the dynamic
+    stage (the paper: ~7000 of 37000 iterations). A fraction, so that the late times of a shortened
+    run are not introduced when the field learning rate has already decayed."""
     warmup_deformation_steps: int = 0
     """Dynamic steps rendered with f_defo alone before the physics path is switched on."""
     handover_frames: float = 4.0
@@ -157,7 +159,7 @@ def cpu_fast() -> TrainConfig:
         ),
         deformation=DeformationConfig(depth=4, width=64, skip_layer=2),
         dynamics=DynamicsConfig(depth=4, width=64, num_frequencies=3),
-        dynamic=DynamicStageConfig(time_growth_steps=1500),
+        dynamic=DynamicStageConfig(),
     )
     return cfg
 
@@ -169,7 +171,6 @@ def tiny() -> TrainConfig:
     cfg.static_iterations, cfg.dynamic_iterations = 2, 2
     cfg.init_points = 200
     cfg.densify = DensifyConfig(refine_start=0, refine_every=1, reset_every=0)
-    cfg.dynamic.time_growth_steps = 1
     return cfg
 
 

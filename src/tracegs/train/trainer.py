@@ -87,7 +87,7 @@ class Trainer:
 
     def _dynamic_view(self, dyn_step: int) -> int:
         """A training image whose time lies in the current (growing) time range."""
-        growth = self.cfg.dynamic.time_growth_steps
+        growth = self.cfg.dynamic.time_growth_fraction * self.cfg.dynamic_iterations
         frac = 1.0 if growth <= 0 else min(1.0, (1 + (8 * dyn_step) // growth) / 8)
         limit = self.t_max * frac + 1e-9
         allowed = [i for i, v in enumerate(self.data.views) if v.time <= limit]
