@@ -60,10 +60,6 @@ class SceneSplit:
     aabb: torch.Tensor | None = None  # [2, 3] min / max corner of the moving object, if known
     meta: dict = field(default_factory=dict)
 
-    @property
-    def times(self) -> list[float]:
-        return sorted({f.time for f in self.frames})
-
 
 def _fail(path: Path, problem: str) -> DatasetError:
     return DatasetError(f"{path}: {problem}")

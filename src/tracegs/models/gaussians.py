@@ -73,20 +73,6 @@ def nearest_neighbour_distance(points: torch.Tensor, k: int = 3, chunk: int = 40
     return torch.cat(out)
 
 
-def activated(params: nn.ParameterDict, sh_degree: int | None = None) -> dict[str, torch.Tensor]:
-    """The renderable quantities: means, quats, positive scales, opacities in (0, 1), SH [N, K, 3]."""
-    sh = torch.cat([params["sh0"], params["shN"]], dim=1)
-    if sh_degree is not None:
-        sh = sh[:, : num_sh_coeffs(sh_degree)]
-    return {
-        "means": params["means"],
-        "quats": params["quats"],
-        "scales": torch.exp(params["scales"]),
-        "opacities": torch.sigmoid(params["opacities"]),
-        "sh": sh,
-    }
-
-
 def empty_like_params(state: dict[str, torch.Tensor]) -> nn.ParameterDict:
     """A parameter dict with the shapes of a saved state dict (for loading a checkpoint)."""
     return nn.ParameterDict({k: nn.Parameter(torch.zeros_like(v)) for k, v in state.items()})
