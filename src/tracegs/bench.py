@@ -8,6 +8,7 @@ tuned or selected on the extrapolation split.
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from pathlib import Path
 
@@ -134,6 +135,15 @@ def scene_folder(out: Path, scene: str, resolution: int) -> Path:
     return data
 
 
+def _set_aside(run: Path) -> None:
+    """Rename a benchmark run folder made with other settings to ``RUN.previous`` (one kept)."""
+    previous = run.with_name(run.name + ".previous")
+    if previous.exists():
+        shutil.rmtree(previous)
+    run.rename(previous)
+    print(f"{run}: made with other settings; moved to {previous} and retraining")
+
+
 def run_variant_table(
     name: str,
     variants: dict[str, dict],
@@ -157,7 +167,9 @@ def run_variant_table(
     for scene in scenes:
         data = scene_folder(out, scene, resolution)
         for label, variant in variants.items():
-            slug = label.replace(" ", "_").replace("=", "")
+            # rows with the same settings share one run folder (the ablation "dt=2" is the TRACE row)
+            same_as_trace = not variant or variant == METHODS["TRACE"]
+            slug = "TRACE" if same_as_trace else label.replace(" ", "_").replace("=", "")
             run = Path(out) / "runs" / f"{Path(scene).name}_{slug}_{preset}"
             cfg = apply_overrides(make_config(preset, data=data, run=run), {**(overrides or {}), **variant})
             done = run / "eval.json"
@@ -165,6 +177,8 @@ def run_variant_table(
                 (run / "config.json").read_text()
             ) == config_to_dict(cfg)
             if not (done.is_file() and same):
+                if run.exists() and not same:  # made with other settings: keep it aside, start afresh
+                    _set_aside(run)
                 summary = Trainer(cfg, progress=False).train()
                 result = evaluate_run(run)
                 done.write_text(json.dumps(result, indent=2))

@@ -7,6 +7,7 @@ with :func:`load_config` (plain JSON into dataclasses, never ``eval``).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 from dataclasses import dataclass, field
@@ -58,6 +59,10 @@ class DynamicStageConfig:
     """Ablation (4): when false, f_trd is queried at the target time and its velocities used directly."""
     straight_through: bool = True
     """Render the physics position with f_defo's gradient passed straight through (x_phys + dx - dx.detach())."""
+    straight_through_time: Literal["t_prime", "t"] = "t_prime"
+    """Which displacement passes its gradient straight through: f_defo(t'), the start of the integration
+    (METHOD.md; the physics then starts from a detached x_t'), or f_defo(t), the rendered time (one
+    more field evaluation per step)."""
     time_growth_fraction: float = 0.19
     """The sampled time range grows in eighths of the training span over this fraction of the dynamic
     stage (the paper: ~7000 of 37000 iterations). A fraction, so that the late times of a shortened
@@ -147,7 +152,7 @@ def cpu_fast() -> TrainConfig:
     cfg = TrainConfig(
         preset="cpu-fast",
         static_iterations=1500,
-        dynamic_iterations=8000,
+        dynamic_iterations=12000,
         bf16=cpu_has_amx_bf16(),
         random_background=True,
         init_points=5000,
@@ -236,7 +241,9 @@ def load_config(path: Path) -> TrainConfig:
 
 
 def apply_overrides(cfg: TrainConfig, overrides: dict) -> TrainConfig:
-    """Set fields by name; nested fields as ``"dynamic__dt_frames"`` (section, double underscore, field)."""
+    """A copy of ``cfg`` with fields set by name; nested fields as ``"dynamic__dt_frames"`` (section,
+    double underscore, field)."""
+    cfg = copy.deepcopy(cfg)
     for key, value in overrides.items():
         section, _, name = key.rpartition("__")
         target = getattr(cfg, section) if section else cfg

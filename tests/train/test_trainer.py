@@ -67,6 +67,49 @@ def test_resume_continues_from_checkpoint(tiny_scene, tmp_path):
     assert resumed.train()["iterations"] == 4
 
 
+def test_resume_refuses_a_checkpoint_trained_with_other_settings(tiny_scene, tmp_path):
+    cfg = _cfg(tiny_scene, tmp_path / "run")
+    trainer = Trainer(cfg, progress=False)
+    trainer.train_step()
+    trainer.save()
+    with pytest.raises(ValueError, match=r"checkpoint\.pt.*dynamic\.dt_frames"):
+        Trainer(apply_overrides(cfg, {"dynamic__dt_frames": 3.0}), progress=False)
+    # where things are written is not a training setting
+    assert Trainer(apply_overrides(cfg, {"checkpoint_every": 7, "log_every": 3}), progress=False).step == 1
+
+
+def _perturbed_model(scene, run, **kw):
+    model = Trainer(_cfg(scene, run, **kw), progress=False).model
+    torch.manual_seed(0)
+    with torch.no_grad():  # non-zero field outputs, so that gradients are not trivially blocked
+        for p in model.field_parameters():
+            p.add_(0.01 * torch.randn_like(p))
+    return model
+
+
+def test_straight_through_at_t_prime_is_exact(tiny_scene, tmp_path):
+    """Default (METHOD.md): x = x_phys(x_t'.detach()) + (x_t' - x_t'.detach()), so the rendered position
+    has the value of the physics result and the gradient of f_defo(t') with Jacobian exactly I."""
+    model = _perturbed_model(tiny_scene, tmp_path / "a")
+    state = model.training_state(0.25, 0.5)
+    weights = torch.randn_like(state["means"])
+    params = [model.gaussians["means"], *model.deformation.parameters()]
+    got = torch.autograd.grad((state["means"] * weights).sum(), params, allow_unused=True)
+    want = torch.autograd.grad((model.deform(0.25)["means"] * weights).sum(), params, allow_unused=True)
+    for g, w in zip(got, want, strict=True):
+        torch.testing.assert_close(g, w, rtol=0, atol=0)
+    with torch.no_grad():
+        start = model.deform(0.25)
+        params = model.query_dynamics(start["means"], 0.25)
+        from tracegs.physics.integrate import integrate
+
+        physics = integrate(start["means"], start["quats"], params, 0.25, model.dt_max)[0]
+    torch.testing.assert_close(state["means"].detach(), physics)
+    # the other choice renders the same value; only the gradient's path differs
+    other = _perturbed_model(tiny_scene, tmp_path / "b", dynamic__straight_through_time="t")
+    torch.testing.assert_close(other.training_state(0.25, 0.5)["means"].detach(), physics)
+
+
 def test_straight_through_gradient_reaches_deformation_field(tiny_scene, tmp_path):
     trainer = Trainer(_cfg(tiny_scene, tmp_path / "run"), progress=False)
     model = trainer.model

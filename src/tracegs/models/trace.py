@@ -78,8 +78,9 @@ class TraceModel(nn.Module):
     def training_state(self, t_prime: float, t: float, physics: bool = True) -> dict[str, torch.Tensor]:
         """Gaussians for rendering frame ``t`` in stage 2 (METHOD.md, Training).
 
-        TRACE: deform to t', query f_trd at (x_t', t'), integrate t' -> t, and pass f_defo(t)'s gradient
-        straight through to the rendered position. DefGS (or ``physics=False``): f_defo(t) alone.
+        TRACE: deform to t', query f_trd at (x_t', t'), integrate t' -> t, and pass f_defo's gradient
+        straight through to the rendered position (that of f_defo(t') by default, see
+        ``DynamicStageConfig.straight_through_time``). DefGS (or ``physics=False``): f_defo(t) alone.
         """
         dyn = self.cfg.dynamic
         if self.dynamics is None or not physics:
@@ -87,14 +88,17 @@ class TraceModel(nn.Module):
         if self.deformation is None:  # ablation "no f_defo": dynamics carry the canonical Gaussians from 0
             t_prime = 0.0
         straight_through = dyn.straight_through and self.deformation is not None
-        start, *target = self.deform_many([t_prime, t] if straight_through else [t_prime])
+        at_t = straight_through and dyn.straight_through_time == "t"
+        start, *target = self.deform_many([t_prime, t] if at_t else [t_prime])
+        x_start = start["means"].detach() if straight_through and not at_t else start["means"]
         query_time = t_prime if dyn.physics_derivation else t
-        params = self.query_dynamics(start["means"], query_time)
+        params = self.query_dynamics(x_start, query_time)
         means, quats = integrate(
-            start["means"], start["quats"], params, t - t_prime, self.dt_max, method=dyn.integrator
+            x_start, start["quats"], params, t - t_prime, self.dt_max, method=dyn.integrator
         )[:2]
         if straight_through:
-            means = means + (target[0]["means"] - target[0]["means"].detach())
+            shift = (target[0] if at_t else start)["means"]
+            means = means + (shift - shift.detach())
         return {"means": means, "quats": quats, "scales": start["scales"]}
 
     # ----- any time, past or future -----------------------------------------------------------

@@ -221,6 +221,12 @@ class Trainer:
 
     def _resume(self, path: Path) -> None:
         ckpt = torch.load(path, map_location=self.device, weights_only=False)
+        changed = _changed_settings(ckpt.get("config", {}), config_to_dict(self.cfg))
+        if changed:
+            raise ValueError(
+                f"{path}: the checkpoint was trained with other settings ({', '.join(changed)}); "
+                "resume with the same settings, or train into a new --run folder"
+            )
         gauss_state = {k.split(".", 1)[1]: v for k, v in ckpt["model"].items() if k.startswith("gaussians.")}
         self.model.gaussians = empty_like_params(gauss_state)
         self.model.load_state_dict(ckpt["model"])
@@ -233,6 +239,23 @@ class Trainer:
         self.timings.update(ckpt.get("timings", {}))
         torch.set_rng_state(ckpt["rng"]["torch"])
         random.setstate(ckpt["rng"]["python"])
+
+
+# Settings that may change when a killed run is resumed: where things are, not what is trained.
+RESUMABLE_CHANGES = frozenset({"run", "data", "device", "backend", "checkpoint_every", "log_every"})
+
+
+def _changed_settings(saved: dict, current: dict, prefix: str = "") -> list[str]:
+    """Dotted names of the settings that differ between two config dicts (resumable ones excepted)."""
+    changed = []
+    for key in sorted(set(saved) | set(current)):
+        name = prefix + key
+        a, b = saved.get(key), current.get(key)
+        if isinstance(a, dict) and isinstance(b, dict):
+            changed += _changed_settings(a, b, name + ".")
+        elif a != b and name not in RESUMABLE_CHANGES:
+            changed.append(name)
+    return changed
 
 
 def load_run(run: str | Path, device: str = "auto") -> tuple[TraceModel, TrainConfig, dict]:
