@@ -76,7 +76,11 @@ class DynamicStageConfig:
     """Re-query f_trd at every step when extrapolating (Alg. 1 applied progressively); default: query once at
     the handover time and let the constant accelerations evolve the parameters (measured better on fan)."""
     freeze_static_threshold: float = 0.0
-    """Gaussians whose deformation stays below this displacement (scene units) are frozen when extrapolating (0 = off)."""
+    """Gaussians whose deformation stays below this displacement (scene units) are frozen when
+    extrapolating (0 = off). Used when ``freeze_static_auto`` is off."""
+    freeze_static_auto: bool = True
+    """After training, choose the freeze threshold on the training images (pseudo-extrapolation over
+    the last training frames, ``train/calibrate.py``); stored in the checkpoint."""
 
 
 @dataclass

@@ -113,6 +113,7 @@ def evaluate_run(
         t_train_end=t_end,
         train_seconds=meta["train_seconds"],
         iterations=meta["step"],
+        freeze_threshold=meta.get("freeze_threshold"),
         gaussians=int(model.gaussians["means"].shape[0]),
     )
     return result

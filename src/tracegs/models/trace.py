@@ -34,6 +34,8 @@ class TraceModel(nn.Module):
         uses_deformation = cfg.method == "defgs" or (cfg.method == "trace" and cfg.dynamic.use_deformation)
         self.deformation = make_deformation_field(cfg.deformation, aabb) if uses_deformation else None
         self.dynamics = DynamicsField(cfg.dynamics) if cfg.method == "trace" else None
+        self.freeze_threshold: float | None = None
+        """Freeze threshold chosen after training (``train/calibrate.py``); None: the config's."""
 
     # ----- fields -----------------------------------------------------------------------------
     def field_parameters(self) -> list[nn.Parameter]:
@@ -124,15 +126,20 @@ class TraceModel(nn.Module):
         """Last time rendered by f_defo alone; later times are integrated from it."""
         return max(0.0, t_max - self.cfg.dynamic.handover_frames * self.dt_max)
 
-    def _physics_from(self, t0: float, t: float) -> dict[str, torch.Tensor]:
-        """Deform to ``t0`` and chain integration steps of at most ``dt_max`` to ``t`` (forward or back)."""
+    def _physics_from(
+        self, t0: float, t: float, moving: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
+        """Deform to ``t0`` and chain integration steps of at most ``dt_max`` to ``t`` (forward or back).
+
+        ``moving`` [N] bool: the Gaussians that move (the others stay at their ``t0`` state); by default
+        those above the freeze threshold (``moving_mask``), or all when it is 0.
+        """
         dyn = self.cfg.dynamic
         state = self.deform(t0)
         means, quats = state["means"], quat_normalize(state["quats"])
-        if dyn.freeze_static_threshold > 0 and self.deformation is not None:
-            moving = self.moving_mask(t0, dyn.freeze_static_threshold)
-        else:
-            moving = None
+        threshold = dyn.freeze_static_threshold if self.freeze_threshold is None else self.freeze_threshold
+        if moving is None and threshold > 0 and self.deformation is not None:
+            moving = self.moving_mask(t0, threshold)
         span = t - t0
         n = max(1, math.ceil(abs(span) / self.dt_max - 1e-9))
         h = span / n
@@ -154,11 +161,16 @@ class TraceModel(nn.Module):
     @torch.no_grad()
     def moving_mask(self, t_max: float, threshold: float, samples: int = 8) -> torch.Tensor:
         """Gaussians whose f_defo displacement exceeds ``threshold`` at some training time."""
+        return self.max_displacement(t_max, samples) > threshold
+
+    @torch.no_grad()
+    def max_displacement(self, t_max: float, samples: int = 8) -> torch.Tensor:
+        """[N] the largest f_defo displacement of each Gaussian over ``samples + 1`` times in [0, t_max]."""
         x0 = self.gaussians["means"]
-        moved = torch.zeros(x0.shape[0], dtype=torch.bool, device=x0.device)
+        most = torch.zeros(x0.shape[0], device=x0.device)
         for k in range(samples + 1):
-            moved |= (self.deform(t_max * k / samples)["means"] - x0).norm(dim=-1) > threshold
-        return moved
+            most = torch.maximum(most, (self.deform(t_max * k / samples)["means"] - x0).norm(dim=-1))
+        return most
 
     @property
     def dt_max(self) -> float:

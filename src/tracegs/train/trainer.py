@@ -22,6 +22,7 @@ from ..data.dataset import ViewDataset, frame_interval
 from ..models.gaussians import create_gaussians, empty_like_params, random_gaussians
 from ..models.trace import TraceModel
 from ..utils import atomic_torch_save, atomic_write_text, resolve_device, seed_everything
+from .calibrate import choose_freeze_threshold
 from .losses import photometric_loss
 from .optim import field_lr, field_optimizer, gaussian_optimizers, means_lr, set_lr
 from .strategy import DefaultStrategy, scene_extent_from_cameras
@@ -73,6 +74,7 @@ class Trainer:
         self.strategy = DefaultStrategy(cfg.densify, self.extent, cfg.total_iterations)
         self.strategy_state = self.strategy.initialize_state()
         self.step, self.train_seconds = 0, 0.0
+        self.freeze_psnr: dict[str, float] = {}  # training-view PSNR per candidate freeze threshold
         self.timings: dict[str, float] = defaultdict(float)
         if (self.run / "checkpoint.pt").is_file():
             self._resume(self.run / "checkpoint.pt")
@@ -186,6 +188,7 @@ class Trainer:
         finally:
             bar.close()
             log.close()
+        self.calibrate()
         self.save()
         summary = self.summary()
         atomic_write_text(self.run / "summary.json", json.dumps(summary, indent=2))
@@ -201,8 +204,19 @@ class Trainer:
             "gaussians": int(self.model.gaussians["means"].shape[0]),
             "train_seconds": round(self.train_seconds, 2),
             "t_max": self.t_max,
+            "freeze_threshold": self.model.freeze_threshold,
+            "freeze_psnr": self.freeze_psnr,
             "ms_per_iteration": {k: round(1000 * v / steps, 2) for k, v in self.timings.items()},
         }
+
+    def calibrate(self) -> None:
+        """Post-training choices on the training images (the freeze threshold, ``calibrate.py``)."""
+        if self.cfg.dynamic.freeze_static_auto and self.model.freeze_threshold is None:
+            threshold, scores = choose_freeze_threshold(
+                self.model, self.cfg.data, self.cfg.downscale, self.t_max, self.extent
+            )
+            self.model.freeze_threshold = threshold
+            self.freeze_psnr = {f"{k:.6g}": round(v, 3) for k, v in scores.items()}
 
     # ----- checkpoints -----------------------------------------------------------------------------
     def save(self) -> Path:
@@ -212,6 +226,7 @@ class Trainer:
             "timings": dict(self.timings),
             "config": config_to_dict(self.cfg),
             "t_max": self.t_max,
+            "freeze_threshold": self.model.freeze_threshold,
             "model": self.model.state_dict(),
             "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
             "field_optimizer": self.field_opt.state_dict() if self.field_opt is not None else None,
@@ -236,6 +251,7 @@ class Trainer:
         if self.field_opt is not None and ckpt["field_optimizer"] is not None:
             self.field_opt.load_state_dict(ckpt["field_optimizer"])
         self.step, self.train_seconds = ckpt["step"], ckpt["train_seconds"]
+        self.model.freeze_threshold = ckpt.get("freeze_threshold")
         self.timings.update(ckpt.get("timings", {}))
         torch.set_rng_state(ckpt["rng"]["torch"])
         random.setstate(ckpt["rng"]["python"])
@@ -274,5 +290,20 @@ def load_run(run: str | Path, device: str = "auto") -> tuple[TraceModel, TrainCo
     model = TraceModel(cfg, gaussians, state["aabb"], float(state["frame_interval"])).to(dev)
     model.load_state_dict(state)
     model.eval()
-    meta = {"step": ckpt["step"], "train_seconds": ckpt["train_seconds"], "t_max": ckpt["t_max"]}
+    model.freeze_threshold = ckpt.get("freeze_threshold")
+    if model.freeze_threshold is None and cfg.dynamic.freeze_static_auto and Path(cfg.data).is_dir():
+        # a checkpoint written before training ended (or by an older version): choose it now
+        centers = ViewDataset(
+            cfg.data, "train", cfg.downscale, t_max=ckpt["t_max"], device=dev
+        ).camera_centers()
+        extent = scene_extent_from_cameras(centers)
+        model.freeze_threshold = choose_freeze_threshold(
+            model, cfg.data, cfg.downscale, ckpt["t_max"], extent
+        )[0]
+    meta = {
+        "step": ckpt["step"],
+        "train_seconds": ckpt["train_seconds"],
+        "t_max": ckpt["t_max"],
+        "freeze_threshold": model.freeze_threshold,
+    }
     return model, cfg, meta
