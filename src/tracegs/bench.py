@@ -123,14 +123,17 @@ def _flags(overrides: dict | None) -> str:
     return "".join(f" --{k.replace('_', '-')} {v}" for k, v in (overrides or {}).items())
 
 
-def scene_folder(out: Path, scene: str, resolution: int) -> Path:
-    """A synthetic scene by name (rendered once into ``out/scenes``) or an existing scene folder."""
+def scene_folder(out: Path, scene: str, resolution: int, synthesize_missing: bool = True) -> Path | None:
+    """A synthetic scene by name (rendered once into ``out/scenes``) or an existing scene folder;
+    None if it does not exist yet and ``synthesize_missing`` is off."""
     if Path(scene).is_dir():
         return Path(scene)
     from .data.synth import synthesize
 
     data = Path(out) / "scenes" / f"{scene}_{resolution}"
     if not (data / "transforms_test.json").is_file():
+        if not synthesize_missing:
+            return None
         synthesize(scene, data, resolution=resolution, progress=False)
     return data
 
@@ -153,6 +156,7 @@ def run_variant_table(
     resolution: int = 128,
     overrides: dict | None = None,
     update_docs: bool = True,
+    train: bool = True,
 ) -> list[dict]:
     """Train and evaluate every variant (config overrides) on every scene; one table row each.
 
@@ -165,7 +169,9 @@ def run_variant_table(
 
     records = []
     for scene in scenes:
-        data = scene_folder(out, scene, resolution)
+        data = scene_folder(out, scene, resolution, synthesize_missing=train)
+        if data is None:
+            continue
         for label, variant in variants.items():
             # rows with the same settings share one run folder (the ablation "dt=2" is the TRACE row)
             same_as_trace = not variant or variant == METHODS["TRACE"]
@@ -176,6 +182,9 @@ def run_variant_table(
             same = (run / "config.json").is_file() and json.loads(
                 (run / "config.json").read_text()
             ) == config_to_dict(cfg)
+            if not (done.is_file() and same) and not train:
+                print(f"{run}: no finished run with these settings; row skipped")
+                continue
             if not (done.is_file() and same):
                 if run.exists() and not same:  # made with other settings: keep it aside, start afresh
                     _set_aside(run)
@@ -203,7 +212,7 @@ def run_variant_table(
                     "ms_per_it": summary["ms_per_iteration"],
                 }
             )
-    if update_docs:
+    if update_docs and records:
         cols = [c for c in records[0] if c != "ms_per_it"]
         timing_rows = [{"scene": r["scene"], "variant": r["variant"], **r["ms_per_it"]} for r in records]
         body = (

@@ -116,6 +116,8 @@ class Bench:
     """Override the preset's dynamic iterations (a shorter schedule for large tables)."""
     variants: tuple[str, ...] = ()
     """Subset of rows to run (e.g. TRACE DefGS, or dt=1 "no f_defo"); empty = all."""
+    report_only: bool = False
+    """Train nothing: tabulate the finished runs of these scenes and variants, skip the others."""
 
 
 def _dump(result, path: Path | None) -> None:
@@ -201,7 +203,7 @@ def main(argv: list[str] | None = None) -> None:
                     {} if a.dynamic_iterations is None else {"dynamic_iterations": a.dynamic_iterations}
                 )
                 records = run_variant_table(
-                    a.what, variants, a.out, a.scenes, a.preset, a.resolution, overrides
+                    a.what, variants, a.out, a.scenes, a.preset, a.resolution, overrides, train=not a.report_only
                 )
             if a.json is not None:
                 _dump(records, a.json)

@@ -1,0 +1,29 @@
+"""Method/ablation tables: runs are reused when their settings match, shared between identical rows,
+and `report_only` trains nothing."""
+
+from tests.conftest import write_tiny_scene
+
+from tracegs.bench import ABLATIONS, METHODS, run_variant_table
+
+
+def test_rows_reuse_and_share_runs(tmp_path):
+    out = tmp_path / "bench"
+    scenes = (str(write_tiny_scene(tmp_path / "scene", size=32)),)  # LPIPS needs >= 31 px
+    rows = run_variant_table(
+        "methods", {"TRACE": METHODS["TRACE"]}, out, scenes, "tiny", update_docs=False, train=False
+    )
+    assert rows == []  # nothing finished yet, nothing trained
+    assert not (out / "runs").exists()
+
+    rows = run_variant_table("methods", {"TRACE": METHODS["TRACE"]}, out, scenes, "tiny", update_docs=False)
+    assert [r["variant"] for r in rows] == ["TRACE"]
+    assert {"interp_psnr", "extrap_psnr", "train_s", "iterations", "gaussians"} <= set(rows[0])
+    checkpoint = out / "runs" / "scene_TRACE_tiny" / "checkpoint.pt"
+    stamp = checkpoint.stat().st_mtime_ns
+
+    # the ablation row with the default settings is the TRACE run: reported, not retrained
+    again = run_variant_table(
+        "ablations", {"dt=2": ABLATIONS["dt=2"]}, out, scenes, "tiny", update_docs=False, train=False
+    )
+    assert [r["extrap_psnr"] for r in again] == [rows[0]["extrap_psnr"]]
+    assert checkpoint.stat().st_mtime_ns == stamp
