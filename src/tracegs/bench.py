@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from .bench_report import machine_description, markdown_table, update_section
+from .bench_report import machine_description, markdown_table, merge_records, update_section
 from .config import make_config
 
 
@@ -213,17 +213,28 @@ def run_variant_table(
                 }
             )
     if update_docs and records:
-        cols = [c for c in records[0] if c != "ms_per_it"]
-        timing_rows = [{"scene": r["scene"], "variant": r["variant"], **r["ms_per_it"]} for r in records]
-        body = (
-            f"## {name} ({preset}, {resolution} px)\n\n"
-            f"`tracegs bench {name} --scenes {' '.join(scenes)} --preset {preset}{_flags(overrides)}` "
-            f"on {machine_description()}.\n"
-            "PSNR is MAE-PSNR (the paper's), LPIPS is VGG; `paper_extrap` is the paper's extrapolation "
-            "PSNR / SSIM / LPIPS for the corresponding row (Dynamic Multipart mean; its scenes differ from ours).\n\n"
-            + markdown_table(records, cols)
-            + "\n\nTime per training iteration (ms), averaged over the whole run:\n\n"
-            + markdown_table(timing_rows, list(timing_rows[0].keys()))
-        )
-        update_section(f"{name}-{preset}{_flags(overrides).replace(' ', '')}", body)
+        command = f"tracegs bench {name} --scenes {' '.join(scenes)} --preset {preset}{_flags(overrides)}"
+        stamp = {"command": command, "machine": machine_description()}
+        section = f"{name}-{preset}{_flags(overrides).replace(' ', '')}"
+        table = merge_records(section, [r | stamp for r in records], ("scene", "variant"))
+        update_section(section, variant_table_markdown(name, preset, resolution, table))
     return records
+
+
+def variant_table_markdown(name: str, preset: str, resolution: int, records: list[dict]) -> str:
+    """The quality table and the per-iteration timing table of ``records`` (each with its command and
+    machine), as a section of docs/BENCHMARKS.md."""
+    cols = [c for c in records[0] if c not in ("ms_per_it", "command", "machine")]
+    timing_rows = [{"scene": r["scene"], "variant": r["variant"], **r["ms_per_it"]} for r in records]
+    provenance = "\n".join(
+        f"- `{c}` on {m}" for c, m in dict.fromkeys((r["command"], r["machine"]) for r in records)
+    )
+    return (
+        f"## {name} ({preset}, {resolution} px)\n\n"
+        f"Rows measured by (raw records in `docs/results/`):\n{provenance}\n\n"
+        "PSNR is MAE-PSNR (the paper's), LPIPS is VGG; `paper_extrap` is the paper's extrapolation "
+        "PSNR / SSIM / LPIPS for the corresponding row (Dynamic Multipart mean; its scenes differ from ours).\n\n"
+        + markdown_table(records, cols)
+        + "\n\nTime per training iteration (ms), averaged over the whole run:\n\n"
+        + markdown_table(timing_rows, list(timing_rows[0].keys()))
+    )

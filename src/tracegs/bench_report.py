@@ -7,6 +7,7 @@ benchmark replaces its own section and leaves the others untouched.
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import os
 import platform
 import re
@@ -15,6 +16,9 @@ from pathlib import Path
 import torch
 
 DEFAULT_PATH = Path(__file__).resolve().parents[2] / "docs" / "BENCHMARKS.md"
+RESULTS_DIR = DEFAULT_PATH.parent / "results"
+"""Raw benchmark records, one JSON file per table, so that a table keeps the rows of earlier runs
+(run folders are not part of the repository; a table run on one scene must not erase the others)."""
 
 
 def machine_description() -> str:
@@ -66,3 +70,21 @@ def update_section(name: str, body: str, path: str | Path | None = None) -> Path
     tmp.write_text(text)
     os.replace(tmp, path)
     return path
+
+
+def merge_records(
+    name: str, records: list[dict], keys: tuple[str, ...], folder: str | Path | None = None
+) -> list[dict]:
+    """Store ``records`` in ``folder/NAME.json`` (default ``docs/results``), replacing stored records
+    with the same ``keys`` values and keeping the others; returns every stored record, old ones first."""
+    path = Path(folder if folder is not None else RESULTS_DIR) / f"{name}.json"
+    stored = json.loads(path.read_text()) if path.is_file() else []
+    if not isinstance(stored, list):
+        raise ValueError(f"{path}: expected a JSON list of benchmark records")
+    fresh = {tuple(r[k] for k in keys): r for r in records}
+    merged = [r for r in stored if tuple(r.get(k) for k in keys) not in fresh] + list(fresh.values())
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(merged, indent=1) + "\n")
+    os.replace(tmp, path)
+    return merged

@@ -203,7 +203,14 @@ def main(argv: list[str] | None = None) -> None:
                     {} if a.dynamic_iterations is None else {"dynamic_iterations": a.dynamic_iterations}
                 )
                 records = run_variant_table(
-                    a.what, variants, a.out, a.scenes, a.preset, a.resolution, overrides, train=not a.report_only
+                    a.what,
+                    variants,
+                    a.out,
+                    a.scenes,
+                    a.preset,
+                    a.resolution,
+                    overrides,
+                    train=not a.report_only,
                 )
             if a.json is not None:
                 _dump(records, a.json)

@@ -27,3 +27,14 @@ def test_rows_reuse_and_share_runs(tmp_path):
     )
     assert [r["extrap_psnr"] for r in again] == [rows[0]["extrap_psnr"]]
     assert checkpoint.stat().st_mtime_ns == stamp
+
+
+def test_merge_records_keeps_other_rows_and_replaces_same_key(tmp_path):
+    from tracegs.bench_report import merge_records
+
+    merge_records("t", [{"scene": "a", "variant": "TRACE", "psnr": 1.0}], ("scene", "variant"), tmp_path)
+    merge_records("t", [{"scene": "b", "variant": "TRACE", "psnr": 2.0}], ("scene", "variant"), tmp_path)
+    table = merge_records(
+        "t", [{"scene": "a", "variant": "TRACE", "psnr": 3.0}], ("scene", "variant"), tmp_path
+    )
+    assert [(r["scene"], r["psnr"]) for r in table] == [("b", 2.0), ("a", 3.0)]
