@@ -1,6 +1,7 @@
 """The evaluation protocol: split membership, the JSON schema, per-time rows; render and metrics CLI."""
 
 import json
+import math
 
 import pytest
 from tests.conftest import write_tiny_scene
@@ -45,6 +46,11 @@ def test_eval_json_has_every_field(trained_run, tmp_path):
     assert result["interpolation"]["frames"] == 4 and result["extrapolation"]["frames"] == 3
     # one time in the extrapolation split: its row is the split's MAE-PSNR
     assert rows[0]["psnr"] == pytest.approx(result["extrapolation"]["mae_psnr"])
+    # per camera set: 2 training cameras + 1 held-out camera, together the whole split
+    per = result["extrapolation"]["per_cameras"]
+    assert {k: v["frames"] for k, v in per.items()} == {"train_cameras": 2, "new_cameras": 1}
+    pooled = sum(v["frames"] * 10 ** (-v["mae_psnr"] / 10) for v in per.values()) / 3
+    assert -10 * math.log10(pooled) == pytest.approx(result["extrapolation"]["mae_psnr"], abs=1e-6)
 
 
 def test_half_resolution_scoring(trained_run):

@@ -17,19 +17,35 @@ from ..utils import atomic_write_image
 from .metrics import mae_psnr, mse, psnr, ssim
 
 
-def split_frames(data: Path, t_train_end: float, downscale: int = 1) -> dict[str, list[Frame]]:
-    """Frames of the interpolation and extrapolation splits (deduplicated by image path)."""
-    interpolation, extrapolation, seen = [], [], set()
+def split_frames(
+    data: Path, t_train_end: float, downscale: int = 1, with_cameras: bool = False
+) -> dict[str, list[Frame]] | dict[str, list[tuple[str, Frame]]]:
+    """Frames of the interpolation and extrapolation splits (deduplicated by image path); with
+    ``with_cameras``, ``(cameras, frame)`` pairs where ``cameras`` says whether a training camera
+    took the frame ("train_cameras") or not ("new_cameras")."""
+    interpolation, extrapolation, seen, train_cameras = [], [], set(), set()
     for split in available_splits(data):
-        for f in load_scene(data, split, downscale).frames:
+        frames = load_scene(data, split, downscale).frames
+        if split == "train":
+            train_cameras = {_camera_key(f) for f in frames}
+        for f in frames:
             if f.image_path in seen:
                 continue
             seen.add(f.image_path)
+            cameras = "train_cameras" if _camera_key(f) in train_cameras else "new_cameras"
             if f.time > t_train_end + 1e-9:
-                extrapolation.append(f)
+                extrapolation.append((cameras, f))
             elif split == "val":
-                interpolation.append(f)
-    return {"interpolation": interpolation, "extrapolation": extrapolation}
+                interpolation.append((cameras, f))
+    out = {"interpolation": interpolation, "extrapolation": extrapolation}
+    return out if with_cameras else {k: [f for _, f in v] for k, v in out.items()}
+
+
+def _camera_key(f: Frame) -> tuple:
+    """A camera's identity: its id when the dataset gives one, else its pose (to 1e-4)."""
+    if f.camera_id is not None:
+        return ("id", f.camera_id)
+    return tuple(round(float(v), 4) for v in f.camera.viewmat[:3].flatten())
 
 
 def _aggregate(records: list[dict], with_lpips: bool) -> dict:
@@ -69,14 +85,14 @@ def evaluate_run(
     if with_lpips:
         from .lpips import lpips as lpips_fn
     result: dict = {}
-    for split, frames in split_frames(data, t_end, cfg.downscale).items():
-        by_time: dict[float, list[Frame]] = defaultdict(list)
-        for f in frames:
-            by_time[f.time].append(f)
+    for split, frames in split_frames(data, t_end, cfg.downscale, with_cameras=True).items():
+        by_time: dict[float, list[tuple[str, Frame]]] = defaultdict(list)
+        for cameras, f in frames:
+            by_time[f.time].append((cameras, f))
         records = []
         for t in sorted(by_time):
             state = model.state_at(t, meta["t_max"])
-            for f in by_time[t]:
+            for cameras, f in by_time[t]:
                 cam = f.camera.to(dev)
                 pred = model.render(state, cam, cfg.sh_degree, background).image.clamp(0, 1)
                 gt = load_image(f, scene.background).to(dev)
@@ -87,6 +103,7 @@ def evaluate_run(
                     )
                 rec = {
                     "t": t,
+                    "cameras": cameras,
                     "mse": float(mse(pred, gt)),
                     "psnr": float(psnr(pred, gt)),
                     "ssim": float(ssim(pred, gt)),
@@ -100,6 +117,11 @@ def evaluate_run(
         summary = _aggregate(records, lpips_fn is not None)
         if split == "extrapolation":
             summary["per_time"] = _per_time(records, lpips_fn is not None)
+            # training cameras (future time only) vs the others (future time and a new view)
+            summary["per_cameras"] = {
+                c: _aggregate([r for r in records if r["cameras"] == c], False)
+                for c in dict.fromkeys(r["cameras"] for r in records)
+            }
         result[split] = summary
     if (data / "gt" / "motion.json").is_file() and result["extrapolation"].get("frames"):
         from .physics import physics_errors

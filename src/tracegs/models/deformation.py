@@ -35,6 +35,9 @@ class DeformationConfig:
     skip_layer: int | None = 4
     """After this hidden layer (0-based) the encoded input is concatenated again (Deformable 3DGS:
     depth // 2); None for no skip."""
+    detach_input: bool = True
+    """Feed the canonical centres to the field without gradient, as Deformable 3DGS does: x0 then
+    learns through x0 + dx only, and the backward skips the input-gradient pass of the encoding."""
     position_frequencies: int = 8
     """Frequencies of the positional encoding of x0 (TRACE's Appendix: 8; Deformable 3DGS: 10)."""
     time_frequencies: int = 6

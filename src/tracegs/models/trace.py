@@ -57,7 +57,8 @@ class TraceModel(nn.Module):
         if self.deformation is None:
             return [{"means": g["means"], "quats": g["quats"], "scales": g["scales"]} for _ in times]
         n = g["means"].shape[0]
-        x = g["means"].repeat(len(times), 1)
+        x0 = g["means"].detach() if self.cfg.deformation.detach_input else g["means"]
+        x = x0.repeat(len(times), 1)
         t = torch.tensor(times, dtype=x.dtype, device=x.device).repeat_interleave(n)[:, None]
         with self.autocast():
             dx, dq, dlog_s = self.deformation(x, t)
