@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from .bench_report import machine_description, markdown_table, merge_records, update_section
+from .bench_report import cpu_name, machine_description, markdown_table, merge_records, update_section
 from .config import make_config
 
 
@@ -65,6 +65,7 @@ def run_field_bench(n: int = 20_000, update_docs: bool = True) -> list[dict]:
                 gflop = 3 * _mlp_flops(field, n) / 1e9  # backward ~ 2x forward
                 records.append(
                     {
+                        "cpu": cpu_name(),
                         "preset": preset,
                         "field": name,
                         "dtype": "bf16" if bf16 else "fp32",
@@ -75,11 +76,14 @@ def run_field_bench(n: int = 20_000, update_docs: bool = True) -> list[dict]:
                     }
                 )
     if update_docs:
+        stamp = {"machine": machine_description()}
+        table = merge_records("fields", [r | stamp for r in records], ("cpu", "preset", "field", "dtype"))
+        machines = "\n".join(f"- {m}" for m in dict.fromkeys(r["machine"] for r in table))
         body = (
             "## Fields (forward + backward)\n\n"
-            f"`tracegs bench fields` on {machine_description()}.\n"
+            f"`tracegs bench fields` on (raw records in `docs/results/fields.json`):\n{machines}\n\n"
             "GFLOP counts the Linear layers only (forward x 3 for forward + backward).\n\n"
-            + markdown_table(records, list(records[0].keys()))
+            + markdown_table(table, [c for c in table[0] if c != "machine"])
         )
         update_section("fields", body)
     return records
@@ -205,6 +209,9 @@ def run_variant_table(
                     "extrap_psnr": e["mae_psnr"],
                     "extrap_ssim": e["ssim"],
                     "extrap_lpips": e.get("lpips_vgg", float("nan")),
+                    "extrap_psnr_new_cams": e.get("per_cameras", {})
+                    .get("new_cameras", {})
+                    .get("mae_psnr", "-"),
                     "paper_extrap": PAPER.get(label, "-"),
                     "train_s": summary["train_seconds"],
                     "iterations": summary["iterations"],
@@ -224,16 +231,20 @@ def run_variant_table(
 def variant_table_markdown(name: str, preset: str, resolution: int, records: list[dict]) -> str:
     """The quality table and the per-iteration timing table of ``records`` (each with its command and
     machine), as a section of docs/BENCHMARKS.md."""
-    cols = [c for c in records[0] if c not in ("ms_per_it", "command", "machine")]
+    hidden = ("ms_per_it", "command", "machine", "note")
+    cols = [c for c in dict.fromkeys(k for r in records for k in r) if c not in hidden]
     timing_rows = [{"scene": r["scene"], "variant": r["variant"], **r["ms_per_it"]} for r in records]
     provenance = "\n".join(
-        f"- `{c}` on {m}" for c, m in dict.fromkeys((r["command"], r["machine"]) for r in records)
+        f"- `{c}` on {m}" + (f" ({n})" if n else "")
+        for c, m, n in dict.fromkeys((r["command"], r["machine"], r.get("note")) for r in records)
     )
     return (
         f"## {name} ({preset}, {resolution} px)\n\n"
         f"Rows measured by (raw records in `docs/results/`):\n{provenance}\n\n"
-        "PSNR is MAE-PSNR (the paper's), LPIPS is VGG; `paper_extrap` is the paper's extrapolation "
-        "PSNR / SSIM / LPIPS for the corresponding row (Dynamic Multipart mean; its scenes differ from ours).\n\n"
+        "PSNR is MAE-PSNR (the paper's), LPIPS is VGG; `extrap_psnr_new_cams` is the extrapolation PSNR "
+        "of the held-out cameras alone (future time and a new view); `paper_extrap` is the paper's "
+        "extrapolation PSNR / SSIM / LPIPS for the corresponding row (Dynamic Multipart mean; its scenes "
+        "differ from ours).\n\n"
         + markdown_table(records, cols)
         + "\n\nTime per training iteration (ms), averaged over the whole run:\n\n"
         + markdown_table(timing_rows, list(timing_rows[0].keys()))
