@@ -32,8 +32,19 @@ def main() -> None:
         raise SystemExit(f"D-NeRF scene(s) not found: {', '.join(missing)}")
     variants = {m: METHODS[m] for m in args.methods}
     overrides = {"downscale": args.downscale, "t_train_end": 0.75}
+    command = (
+        f"benchmarks/dnerf.py --scenes {' '.join(args.scenes)} --downscale {args.downscale} "
+        f"--preset {args.preset} --methods {' '.join(args.methods)}"
+    )
     rows = run_variant_table(
-        "dnerf", variants, args.out, scenes, args.preset, 800 // (2 * args.downscale), overrides
+        "dnerf",
+        variants,
+        args.out,
+        scenes,
+        args.preset,
+        800 // (2 * args.downscale),
+        overrides,
+        command=command,
     )
     for r in rows:
         print(

@@ -161,11 +161,13 @@ def run_variant_table(
     overrides: dict | None = None,
     update_docs: bool = True,
     train: bool = True,
+    command: str | None = None,
 ) -> list[dict]:
     """Train and evaluate every variant (config overrides) on every scene; one table row each.
 
     A run folder that already holds ``eval.json`` for the same config is reused, so an interrupted
-    benchmark continues where it stopped.
+    benchmark continues where it stopped. ``command`` is the command line recorded with the rows
+    (default: the ``tracegs bench`` line that makes them).
     """
     from .config import apply_overrides, config_to_dict
     from .eval.protocol import evaluate_run
@@ -220,7 +222,10 @@ def run_variant_table(
                 }
             )
     if update_docs and records:
-        command = f"tracegs bench {name} --scenes {' '.join(scenes)} --preset {preset}{_flags(overrides)}"
+        command = (
+            command
+            or f"tracegs bench {name} --scenes {' '.join(scenes)} --preset {preset}{_flags(overrides)}"
+        )
         stamp = {"command": command, "machine": machine_description()}
         section = f"{name}-{preset}{_flags(overrides).replace(' ', '')}"
         table = merge_records(section, [r | stamp for r in records], ("scene", "variant"))

@@ -47,11 +47,14 @@ def _write_gt(root, w=2.0):
 class StandIn:
     """Gaussians on the ground-truth points that rotate part 2 about z at ``w`` (plus an error offset)."""
 
-    def __init__(self, points, ids, w, offset=0.0, w_learned=None):
+    def __init__(self, points, ids, w, offset=0.0, w_learned=None, droop=0.0):
         self.x0 = torch.tensor(points, dtype=torch.float32)
         self.blade = torch.tensor(ids == 2)
-        self.w, self.offset = w, offset
+        self.w, self.offset, self.droop = w, offset, droop
         self.w_learned = w if w_learned is None else w_learned
+
+    def handover_time(self, t_max):
+        return t_max - 0.05
 
     def state_at(self, t, t_max):
         R = rodrigues(torch.tensor([0.0, 0.0, self.w * t]))
@@ -64,7 +67,8 @@ class StandIn:
 
     def query_dynamics(self, means, t):
         p = zero_params(means)
-        w = torch.where(self.blade[:, None], torch.tensor([0.0, 0.0, self.w_learned]), torch.zeros(3))
+        learned = self.w_learned * (1 - self.droop * t)  # the learned |w| falls off over time
+        w = torch.where(self.blade[:, None], torch.tensor([0.0, 0.0, learned]), torch.zeros(3))
         return p._replace(angular_velocity=w)
 
 
@@ -85,3 +89,15 @@ def test_errors_measure_offsets_and_wrong_spin(tmp_path):
     assert blade["axis_error_deg"] == pytest.approx(180.0)
     assert blade["omega_rel_error"] == pytest.approx(0.5)
     assert math.isclose(out["parts"]["1"]["omega_abs_error"], 0.0)
+
+
+def test_omega_over_span_follows_the_learned_drift(tmp_path):
+    points, ids = _write_gt(tmp_path)
+    out = physics_errors(StandIn(points, ids, 2.0, droop=0.2), 0.8, tmp_path, [1.0])
+    rows = out["omega_over_span"]
+    assert [r["t"] for r in rows] == pytest.approx([0.2, 0.4, 0.6, 0.75, 0.8])  # incl. the handover
+    for r in rows:
+        blade = r["parts"]["2"]
+        assert blade["omega_gt_norm"] == pytest.approx(2.0)
+        assert blade["omega_rel_error"] == pytest.approx(0.2 * r["t"], rel=1e-5)
+        assert "1" not in r["parts"]  # the static body has no rotation to compare

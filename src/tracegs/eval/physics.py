@@ -4,7 +4,9 @@
   the rigid motion of the part it lies on; its predicted position at each future time is compared with
   where that motion takes it.
 - Angular velocity: the learned w of each part's Gaussians at t_max (median vector) against the
-  closed form (w0 + alpha t) * axis: the angle between axes and the relative magnitude error.
+  closed form (w0 + alpha t) * axis: the angle between axes and the relative magnitude error; and
+  (``omega_over_span``) the same at several query times of the training span, which shows where in
+  time f_trd is accurate (the extrapolation starts from its value at the handover time).
 N: Gaussians, M: ground-truth points, P: parts, T: times.
 """
 
@@ -46,19 +48,25 @@ def _transform(T: np.ndarray, x: torch.Tensor) -> torch.Tensor:
     return x @ T[:3, :3].T + T[:3, 3]
 
 
+def _parts_at(model, t: float, t_max: float, gt, radius: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(means [N, 3], part id [N])`` of the Gaussians at time ``t`` (0: on no part)."""
+    points, part_ids, transforms = gt
+    T = transforms(t)  # [P, 4, 4], rest -> world at t
+    parts = sorted(int(p) for p in np.unique(part_ids))
+    world = np.concatenate([points[part_ids == p] @ T[p - 1][:3, :3].T + T[p - 1][:3, 3] for p in parts])
+    ids = np.concatenate([part_ids[part_ids == p] for p in parts])
+    means = model.state_at(t, t_max)["means"]
+    return means, assign_parts(means, world, ids, radius)
+
+
 @torch.no_grad()
 def physics_errors(model, t_max: float, data: Path, times: list[float], radius: float = 0.03) -> dict:
     """Per-part trajectory error over ``times`` (> t_max) and angular-velocity error at t_max."""
-    points, part_ids, transforms = _gt(data)
+    gt = _gt(data)
+    part_ids, transforms = gt[1], gt[2]
     parts = sorted(int(p) for p in np.unique(part_ids))
-    state = model.state_at(t_max, t_max)
-    x_start = state["means"]
-    T_start = transforms(t_max)  # [P, 4, 4], rest -> world at t_max
-    world = np.concatenate(
-        [points[part_ids == p] @ T_start[p - 1][:3, :3].T + T_start[p - 1][:3, 3] for p in parts]
-    )
-    ids = np.concatenate([part_ids[part_ids == p] for p in parts])
-    owner = assign_parts(x_start, world, ids, radius)
+    T_start = transforms(t_max)
+    x_start, owner = _parts_at(model, t_max, t_max, gt, radius)
     result = {"radius": radius, "parts": {}}
     per_time = {p: [] for p in parts}
     for t in times:
@@ -82,7 +90,33 @@ def physics_errors(model, t_max: float, data: Path, times: list[float], radius: 
         if omega is not None and bool(sel.any()):
             entry.update(_compare_omega(omega[sel].median(dim=0).values.cpu().numpy(), motions[p - 1], t_max))
         result["parts"][str(p)] = entry
+    if omega is not None:
+        result["omega_over_span"] = _omega_over_span(model, t_max, gt, motions, radius)
     return result
+
+
+def _omega_over_span(model, t_max: float, gt, motions: list[dict], radius: float) -> list[dict]:
+    """Relative error of each rotating part's median learned |w| at query times across the training
+    span: fractions of t_max and the handover time."""
+    times = sorted({t_max * f for f in (0.25, 0.5, 0.75, 1.0)} | {model.handover_time(t_max)})
+    rows = []
+    for t in times:
+        means, owner = _parts_at(model, t, t_max, gt, radius)
+        omega = _learned_angular_velocity(model, means, t)
+        row = {"t": t, "parts": {}}
+        for p, motion in enumerate(motions, start=1):
+            sel = owner == p
+            cmp = (
+                _compare_omega(omega[sel].median(dim=0).values.cpu().numpy(), motion, t) if sel.any() else {}
+            )
+            if "omega_rel_error" in cmp:
+                row["parts"][str(p)] = {
+                    "omega_learned_norm": float(np.linalg.norm(cmp["omega_learned"])),
+                    "omega_gt_norm": float(np.linalg.norm(cmp["omega_gt"])),
+                    "omega_rel_error": cmp["omega_rel_error"],
+                }
+        rows.append(row)
+    return rows
 
 
 def _learned_angular_velocity(model, means: torch.Tensor, t: float) -> torch.Tensor | None:
