@@ -138,3 +138,16 @@ def test_new_model_is_no_motion(tiny_scene, tmp_path):
             state = model.state_at(t, t_max=0.5)
             assert torch.allclose(state["means"], g["means"], atol=tol)
             assert torch.allclose(state["scales"], g["scales"])
+
+
+def test_hexplane_regularisers_join_the_dynamic_loss(tiny_scene, tmp_path):
+    cfg = _cfg(tiny_scene, tmp_path / "run", deformation__kind="hexplane")
+    trainer = Trainer(cfg, progress=False)
+    static = trainer.train_step()  # stage 1: photometric loss only
+    assert "plane_tv" not in static
+    trainer.step = cfg.static_iterations
+    stats = trainer.train_step()
+    terms = ("plane_tv", "time_smoothness", "time_l1")
+    assert all(stats[k] >= 0 for k in terms) and stats["plane_tv"] > 0  # random spatial planes: TV > 0
+    photometric = (1 - cfg.optim.ssim_weight) * stats["l1"] + cfg.optim.ssim_weight * (1 - stats["ssim"])
+    assert stats["loss"] == pytest.approx(photometric + sum(stats[k] for k in terms), rel=1e-5)

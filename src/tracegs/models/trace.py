@@ -41,6 +41,12 @@ class TraceModel(nn.Module):
     def field_parameters(self) -> list[nn.Parameter]:
         return [p for m in (self.deformation, self.dynamics) if m is not None for p in m.parameters()]
 
+    def regularization_losses(self) -> dict[str, torch.Tensor]:
+        """Named, weighted regularisers of the fields (the HexPlane's TV and time terms), for the
+        dynamic stage's loss; empty for fields without any."""
+        field = self.deformation
+        return field.regularization_losses() if hasattr(field, "regularization_losses") else {}
+
     def autocast(self):
         """bf16 autocast for the fields on CPU when configured (AMX makes the MLPs ~3x faster)."""
         if self.cfg.bf16 and self.aabb.device.type == "cpu":

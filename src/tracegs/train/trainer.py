@@ -141,6 +141,10 @@ class Trainer:
         }
         self.strategy.step_pre_backward(info)
         losses = photometric_loss(out.image, target, cfg.optim.ssim_weight)
+        if not static:  # the model's named regularisers join the loss, each logged by name
+            for name, value in self.model.regularization_losses().items():
+                losses[name] = value
+                losses["loss"] = losses["loss"] + value
         t_render = time.perf_counter()
         losses["loss"].backward()
         t_backward = time.perf_counter()
