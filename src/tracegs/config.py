@@ -164,7 +164,7 @@ def cpu_fast() -> TrainConfig:
         sh_degree_interval=500,
         checkpoint_every=1000,
         densify=DensifyConfig(
-            refine_start=300, refine_stop=4500, refine_every=100, reset_every=3000, max_gaussians=10_000
+            refine_start=300, refine_stop=4500, refine_every=100, reset_every=3000, max_gaussians=7_000
         ),
         deformation=DeformationConfig(depth=4, width=64, skip_layer=2),
         dynamics=DynamicsConfig(depth=4, width=64, num_frequencies=3),

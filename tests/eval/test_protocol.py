@@ -85,3 +85,30 @@ def test_metrics_command(tmp_path, capsys):
     main(["metrics", str(tmp_path / "a.png"), str(tmp_path / "b.png"), "--json", str(tmp_path / "m.json")])
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["psnr"] == pytest.approx(-10 * np.log10((26 / 255) ** 2), abs=1e-4)
+
+
+def test_part_errors_split_the_squared_error_by_mask(tmp_path):
+    import imageio.v3 as iio
+    import numpy as np
+    import torch
+
+    from tracegs.eval.protocol import PartErrors
+
+    ids = np.zeros((4, 4), dtype=np.uint8)
+    ids[:, 2:] = 2  # left half background, right half part 2; part 1 absent
+    iio.imwrite(tmp_path / "m.png", ids)
+    gt = torch.zeros(4, 4, 3)
+    pred = gt.clone()
+    pred[:, :2] = 0.1  # background error 0.01 per pixel
+    pred[:, 2:] = 0.3  # part error 0.09 per pixel
+    parts = PartErrors({0: "background", 1: "body", 2: "blades"})
+    parts.add(pred, gt, tmp_path / "m.png")
+    parts.add(pred, gt, tmp_path / "missing.png")  # no mask: skipped
+    out = parts.summary()
+    assert set(out) == {"background", "blades"}
+    assert out["blades"]["pixel_share"] == pytest.approx(0.5)
+    assert out["blades"]["error_share"] == pytest.approx(0.9)
+    assert out["background"]["error_share"] == pytest.approx(0.1)
+    assert out["blades"]["psnr"] == pytest.approx(-10 * math.log10(0.09))
+    with pytest.raises(ValueError, match="m.png"):
+        parts.add(pred[:2], gt[:2], tmp_path / "m.png")

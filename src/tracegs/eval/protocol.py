@@ -85,7 +85,9 @@ def evaluate_run(
     if with_lpips:
         from .lpips import lpips as lpips_fn
     result: dict = {}
+    part_names = _part_names(data)
     for split, frames in split_frames(data, t_end, cfg.downscale, with_cameras=True).items():
+        parts = PartErrors(part_names) if part_names and not half_res and cfg.downscale == 1 else None
         by_time: dict[float, list[tuple[str, Frame]]] = defaultdict(list)
         for cameras, f in frames:
             by_time[f.time].append((cameras, f))
@@ -112,6 +114,8 @@ def evaluate_run(
                     rec["lpips_vgg"] = float(lpips_fn(pred, gt, net="vgg"))
                     rec["lpips_alex"] = float(lpips_fn(pred, gt, net="alex"))
                 records.append(rec)
+                if parts is not None:
+                    parts.add(pred, gt, data / "gt" / "masks" / f.image_path.parent.name / f.image_path.name)
                 if save_images:
                     atomic_write_image(run / "eval" / split / f"{f.image_path.stem}.png", pred)
         summary = _aggregate(records, lpips_fn is not None)
@@ -122,6 +126,8 @@ def evaluate_run(
                 c: _aggregate([r for r in records if r["cameras"] == c], False)
                 for c in dict.fromkeys(r["cameras"] for r in records)
             }
+        if parts is not None and parts.pixels.sum() > 0:
+            summary["per_part"] = parts.summary()
         result[split] = summary
     if (data / "gt" / "motion.json").is_file() and result["extrapolation"].get("frames"):
         from .physics import physics_errors
@@ -139,6 +145,57 @@ def evaluate_run(
         gaussians=int(model.gaussians["means"].shape[0]),
     )
     return result
+
+
+def _part_names(data: Path) -> dict[int, str]:
+    """Part id -> name of a generated scene (``gt/motion.json``; 0 = background), else empty."""
+    import json
+
+    path = Path(data) / "gt" / "motion.json"
+    if not path.is_file() or not (Path(data) / "gt" / "masks").is_dir():
+        return {}
+    parts = json.loads(path.read_text()).get("parts", [])
+    return {0: "background"} | {int(p["id"]): str(p["name"]) for p in parts}
+
+
+class PartErrors:
+    """Squared error summed per ground-truth part (``gt/masks``: part id per pixel), over frames.
+
+    Says where a split's error lies: in the moving parts, the static ones or the background.
+    """
+
+    def __init__(self, names: dict[int, str]):
+        self.names = names
+        size = max(names) + 1
+        self.error = torch.zeros(size, dtype=torch.float64)
+        self.pixels = torch.zeros(size, dtype=torch.float64)
+
+    def add(self, pred: torch.Tensor, gt: torch.Tensor, mask_path: Path) -> None:
+        """Add one frame: ``pred``, ``gt`` [H, W, 3]; frames without a mask file are skipped."""
+        if not mask_path.is_file():
+            return
+        import imageio.v3 as iio
+
+        ids = torch.as_tensor(iio.imread(mask_path).astype("int64")).reshape(-1)
+        err = ((pred - gt) ** 2).mean(dim=-1).reshape(-1).double().cpu()
+        if ids.numel() != err.numel() or int(ids.max()) >= self.error.numel():
+            raise ValueError(f"{mask_path}: mask does not match the image size or the parts of motion.json")
+        self.error += torch.bincount(ids, weights=err, minlength=self.error.numel())
+        self.pixels += torch.bincount(ids, minlength=self.error.numel()).double()
+
+    def summary(self) -> dict[str, dict[str, float]]:
+        """Per part: its share of the pixels and of the squared error, and the PSNR over its pixels."""
+        out = {}
+        for i, name in self.names.items():
+            if self.pixels[i] == 0:
+                continue
+            mean = float(self.error[i] / self.pixels[i])
+            out[name] = {
+                "pixel_share": float(self.pixels[i] / self.pixels.sum()),
+                "error_share": float(self.error[i] / self.error.sum()) if self.error.sum() > 0 else 0.0,
+                "psnr": mae_psnr([mean]),
+            }
+        return out
 
 
 def _per_time(records: list[dict], with_lpips: bool) -> list[dict]:

@@ -31,8 +31,22 @@ def horizon_plot(runs: dict[str, Path], out: Path, title: str = "") -> Path:
     return out
 
 
-def image_strip(data: Path, runs: dict[str, Path], out: Path, camera_id: int = 0, count: int = 4) -> Path:
-    """Rows = GT and each run's rendering (from ``eval/extrapolation``), columns = future times."""
+def error_image(pred: np.ndarray, gt: np.ndarray, gain: float) -> np.ndarray:
+    """Grey [H, W, 3] image of ``gain`` x the mean absolute RGB error, clipped to [0, 1]."""
+    err = np.clip(gain * np.abs(pred[..., :3] - gt[..., :3]).mean(axis=-1), 0.0, 1.0)
+    return np.repeat(err[..., None], 3, axis=-1)
+
+
+def image_strip(
+    data: Path,
+    runs: dict[str, Path],
+    out: Path,
+    camera_id: int = 0,
+    count: int = 4,
+    error_gain: float = 0.0,
+) -> Path:
+    """Rows = GT and each run's rendering (from ``eval/extrapolation``), columns = future times.
+    With ``error_gain`` > 0 each run's row is followed by its error map (:func:`error_image`)."""
     import imageio.v3 as iio
 
     from ..data.blender import load_image
@@ -46,7 +60,8 @@ def image_strip(data: Path, runs: dict[str, Path], out: Path, camera_id: int = 0
     ]
     frames = sorted(frames, key=lambda f: f.time)
     picks = [frames[round(k * (len(frames) - 1) / max(count - 1, 1))] for k in range(count)] if frames else []
-    rows = [[load_image(f).numpy() for f in picks]]
+    gt = [load_image(f).numpy() for f in picks]
+    rows = [gt]
     for run in runs.values():
         rows.append(
             [
@@ -54,6 +69,8 @@ def image_strip(data: Path, runs: dict[str, Path], out: Path, camera_id: int = 0
                 for f in picks
             ]
         )
+        if error_gain > 0:
+            rows.append([error_image(p, g, error_gain) for p, g in zip(rows[-1], gt, strict=True)])
     grid = np.concatenate([np.concatenate(r, axis=1) for r in rows], axis=0)
     out.parent.mkdir(parents=True, exist_ok=True)
     iio.imwrite(out, (np.clip(grid, 0, 1) * 255 + 0.5).astype(np.uint8))
