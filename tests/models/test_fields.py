@@ -285,3 +285,18 @@ def test_bad_config_is_rejected():
         DynamicsField(dynamics_config(order=4))
     with pytest.raises(ValueError):
         DynamicsField(dynamics_config(activation="tanh"))
+
+
+def test_hexplane_fit_bounds_covers_the_bulk_and_ignores_far_floaters():
+    from tracegs.models.hexplane import HexPlane, HexPlaneConfig
+
+    grid = HexPlane(
+        HexPlaneConfig(spatial_resolution=4, time_resolution=3, multires=(1,)),
+        torch.tensor([[-0.1] * 3, [0.1] * 3]),
+    )
+    points = torch.rand(5000, 3) * 4 - 2  # the scene: [-2, 2]^3
+    points[:3] = 100.0  # three far floaters
+    grid.fit_bounds(points)
+    lo, hi = grid.aabb
+    assert torch.all(lo < -1.9) and torch.all(hi > 1.9)  # the bulk is inside
+    assert torch.all(hi < 3.0)  # the floaters did not stretch the box

@@ -151,3 +151,20 @@ def test_hexplane_regularisers_join_the_dynamic_loss(tiny_scene, tmp_path):
     assert all(stats[k] >= 0 for k in terms) and stats["plane_tv"] > 0  # random spatial planes: TV > 0
     photometric = (1 - cfg.optim.ssim_weight) * stats["l1"] + cfg.optim.ssim_weight * (1 - stats["ssim"])
     assert stats["loss"] == pytest.approx(photometric + sum(stats[k] for k in terms), rel=1e-5)
+
+
+def test_hexplane_box_holds_the_whole_scene_in_the_dynamic_stage(tiny_scene, tmp_path):
+    # The dataset's aabb bounds the moving object only; the grid must cover the static scene too,
+    # or background beyond the object's box would read (and follow) the features of its edge.
+    cfg = _cfg(tiny_scene, tmp_path / "run", deformation__kind="hexplane")
+    trainer = Trainer(cfg, progress=False)
+    means = trainer.model.gaussians["means"]
+    with torch.no_grad():  # a static scene larger than the object's box
+        means.mul_(3.0)
+    box = trainer.model.deformation.grid.aabb
+    before = box.clone()
+    trainer.step = cfg.static_iterations
+    trainer.train_step()
+    inside = ((means >= box[0]) & (means <= box[1])).all(dim=1).float().mean()
+    assert inside > 0.99
+    assert (box[0] <= before[0]).all() and (box[1] >= before[1]).all()

@@ -129,6 +129,10 @@ class HexPlaneDeformationField(nn.Module):
             h = torch.relu(layer(h))
         return self.heads(h, x0.dtype)
 
+    def fit_bounds(self, points: torch.Tensor) -> None:
+        """Box the grid around the canonical Gaussians ``points`` [N, 3] (see ``HexPlane.fit_bounds``)."""
+        self.grid.fit_bounds(points)
+
     def regularization_losses(self) -> dict[str, torch.Tensor]:
         """The grid's weighted regularisers (plane TV, time smoothness, time L1)."""
         return self.grid.regularization_losses()

@@ -108,6 +108,21 @@ class HexPlane(nn.Module):
         """Replace the scene box [2, 3] (e.g. by the bounds of the canonical Gaussians)."""
         self.aabb.copy_(torch.as_tensor(aabb, dtype=self.aabb.dtype))
 
+    def fit_bounds(self, points: torch.Tensor, quantile: float = 0.002, margin: float = 0.05) -> None:
+        """Box the grid around ``points`` [N, 3] (the canonical Gaussians when stage 2 starts).
+
+        Points outside the box are clamped onto its faces and share their features, so the box must
+        hold the whole scene, not only the moving object: with the object's box, static background
+        beyond it would read the features of the object's edge and move with it. The box spans the
+        ``quantile`` .. 1 - ``quantile`` range per axis (a few far floaters do not stretch the cells),
+        widened by ``margin`` of its size on every side, and always contains the current box."""
+        points = points.detach().float()
+        lo = torch.quantile(points, quantile, dim=0)
+        hi = torch.quantile(points, 1 - quantile, dim=0)
+        pad = margin * (hi - lo).clamp_min(1e-6)
+        aabb = self.aabb.float()
+        self.set_aabb(torch.stack([torch.minimum(lo - pad, aabb[0]), torch.maximum(hi + pad, aabb[1])]))
+
     def forward(self, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         lo, hi = self.time_range[0], self.time_range[1]
         t = ((t - lo) * (2 / (hi - lo)) - 1).clamp(-1, 1)

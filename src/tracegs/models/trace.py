@@ -47,6 +47,12 @@ class TraceModel(nn.Module):
         field = self.deformation
         return field.regularization_losses() if hasattr(field, "regularization_losses") else {}
 
+    def begin_dynamic_stage(self) -> None:
+        """Once, when stage 2 starts: fields with a spatial box (the HexPlane) fit it to the canonical
+        Gaussians of stage 1."""
+        if hasattr(self.deformation, "fit_bounds"):
+            self.deformation.fit_bounds(self.gaussians["means"])
+
     def autocast(self):
         """bf16 autocast for the fields on CPU when configured (AMX makes the MLPs ~3x faster)."""
         if self.cfg.bf16 and self.aabb.device.type == "cpu":

@@ -123,6 +123,8 @@ class Trainer:
             g = self.model.gaussians
             state = {"means": g["means"], "quats": g["quats"], "scales": g["scales"]}
         else:
+            if dyn_step == 0:
+                self.model.begin_dynamic_stage()
             view = self.data[self._dynamic_view(dyn_step)]
             physics = dyn_step >= cfg.dynamic.warmup_deformation_steps
             state = self.model.training_state(self._t_prime(view.time), view.time, physics=physics)
