@@ -239,9 +239,13 @@ def variant_table_markdown(name: str, preset: str, resolution: int, records: lis
     hidden = ("ms_per_it", "command", "machine", "note")
     cols = [c for c in dict.fromkeys(k for r in records for k in r) if c not in hidden]
     timing_rows = [{"scene": r["scene"], "variant": r["variant"], **r["ms_per_it"]} for r in records]
+    groups: dict[tuple, list[str]] = {}
+    for r in records:
+        groups.setdefault((r["command"], r["machine"], r.get("note")), []).append(
+            f"{r['scene']} {r['variant']}"
+        )
     provenance = "\n".join(
-        f"- `{c}` on {m}" + (f" ({n})" if n else "")
-        for c, m, n in dict.fromkeys((r["command"], r["machine"], r.get("note")) for r in records)
+        f"- {', '.join(rows)}: `{c}` on {m}" + (f" ({n})" if n else "") for (c, m, n), rows in groups.items()
     )
     return (
         f"## {name} ({preset}, {resolution} px)\n\n"
