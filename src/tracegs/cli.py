@@ -175,8 +175,13 @@ def main(argv: list[str] | None = None) -> None:
         from .eval.protocol import evaluate_run
 
         a = tyro.cli(Eval, args=rest, prog=prog)
+        from .eval.report import format_summary
+        from .utils import atomic_write_text
+
         result = evaluate_run(a.run, a.data, a.half_res, a.lpips, a.save_images, a.device)
-        _dump(result, a.json or a.run / "eval.json")
+        path = a.json or a.run / "eval.json"
+        atomic_write_text(path, json.dumps(result, indent=2))
+        print(format_summary(result) + f"\nall numbers: {path}")
     elif command == "metrics":
         from .eval.metrics import compare_images
 

@@ -19,6 +19,7 @@ def run_demo(
     """Synthesise ``scene``, train TRACE with ``preset``, extrapolate, evaluate; returns the metrics."""
     from .data.synth import synthesize
     from .eval.protocol import evaluate_run
+    from .eval.report import format_summary
     from .export.render import render_command
     from .train.trainer import Trainer
 
@@ -47,5 +48,6 @@ def run_demo(
         "metrics": str(run / "eval.json"),
         "renders": str(run / "eval"),
     }
-    print(json.dumps(result, indent=2))
+    print(format_summary(metrics))
+    print(f"all numbers: {run / 'eval.json'}\nrendered test frames: {run / 'eval'}\nvideo: {video}")
     return result

@@ -32,12 +32,17 @@ def test_splits_follow_the_protocol(trained_run):
     assert {f.camera_id for f in splits["interpolation"]} == {2}  # the held-out camera only
 
 
-def test_eval_json_has_every_field(trained_run, tmp_path):
+def test_eval_json_has_every_field(trained_run, tmp_path, capsys):
     pytest.importorskip("tracegs.eval.lpips")
     _, run = trained_run
     out = tmp_path / "eval.json"
     main(["eval", "--run", str(run), "--json", str(out)])
     result = json.loads(out.read_text())
+    # the console gets a summary whose numbers are the file's
+    printed = capsys.readouterr().out
+    extrap = result["extrapolation"]
+    assert f"{extrap['mae_psnr']:.2f}" in printed and f"{extrap['ssim']:.4f}" in printed
+    assert str(out) in printed
     assert FIELDS <= set(result["interpolation"]) and FIELDS <= set(result["extrapolation"])
     for key in ("method", "preset", "scene", "train_seconds", "iterations", "gaussians"):
         assert key in result
@@ -112,3 +117,34 @@ def test_part_errors_split_the_squared_error_by_mask(tmp_path):
     assert out["blades"]["psnr"] == pytest.approx(-10 * math.log10(0.09))
     with pytest.raises(ValueError, match="m.png"):
         parts.add(pred[:2], gt[:2], tmp_path / "m.png")
+
+
+def test_console_summary_reports_parts_and_physics():
+    from tracegs.eval.report import format_summary
+
+    split = {"frames": 2, "psnr": 30.0, "mae_psnr": 29.5, "ssim": 0.95}
+    result = {
+        "interpolation": split,
+        "extrapolation": split
+        | {
+            "per_time": [{"t": 0.8, "psnr": 31.0}, {"t": 1.0, "psnr": 28.0}],
+            "per_part": {"blades": {"psnr": 21.0, "pixel_share": 0.1, "error_share": 0.5}},
+        },
+        "physics": {
+            "parts": {
+                "2": {
+                    "mean_trajectory_error": 0.004,
+                    "omega_learned": [0, 0, 1.9],
+                    "omega_gt": [0, 0, 2.0],
+                    "omega_rel_error": 0.05,
+                    "axis_error_deg": 0.1,
+                }
+            }
+        },
+        "method": "trace",
+        "t_train_end": 0.75,
+    }
+    text = format_summary(result)
+    assert "t=1.000 28.00 dB" in text and "blades 21.00 dB (10% of pixels, 50% of error)" in text
+    assert "|w| 1.900 vs 2.000 (5.0%)" in text and "axis off by 0.10 deg" in text
+    assert "LPIPS" not in text  # columns the result lacks are left out
