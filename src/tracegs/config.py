@@ -41,6 +41,10 @@ class OptimConfig:
     """Initial learning rate of the deformation and dynamics fields (one Adam for both)."""
     field_lr_final: float = 1.6e-6
     """Final learning rate of the fields (exponential decay over the dynamic stage)."""
+    grid_lr: float = 1.6e-3
+    """Initial learning rate of the HexPlane planes (TRACE_4dgs), multiplied by the scene extent (4DGS)."""
+    grid_lr_final: float = 1.6e-4
+    """Final learning rate of the HexPlane planes, multiplied by the scene extent (4DGS)."""
     ssim_weight: float = 0.2
     """Loss = (1 - w) * L1 + w * (1 - SSIM)."""
 

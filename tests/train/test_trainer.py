@@ -168,3 +168,16 @@ def test_hexplane_box_holds_the_whole_scene_in_the_dynamic_stage(tiny_scene, tmp
     inside = ((means >= box[0]) & (means <= box[1])).all(dim=1).float().mean()
     assert inside > 0.99
     assert (box[0] <= before[0]).all() and (box[1] >= before[1]).all()
+
+
+def test_hexplane_planes_train_with_their_own_rate(tiny_scene, tmp_path):
+    cfg = _cfg(tiny_scene, tmp_path / "run", deformation__kind="hexplane")
+    trainer = Trainer(cfg, progress=False)
+    trainer.step = cfg.static_iterations
+    trainer.train_step()
+    groups = {g["name"]: g for g in trainer.field_opt.param_groups}
+    grid = {id(p) for p in trainer.model.deformation.grid.parameters()}
+    assert {id(p) for p in groups["grid"]["params"]} == grid
+    assert not grid & {id(p) for p in groups["fields"]["params"]}
+    assert groups["grid"]["lr"] == pytest.approx(cfg.optim.grid_lr * trainer.extent)  # 4DGS: x extent
+    assert groups["fields"]["lr"] == pytest.approx(cfg.optim.field_lr)

@@ -41,6 +41,16 @@ class TraceModel(nn.Module):
     def field_parameters(self) -> list[nn.Parameter]:
         return [p for m in (self.deformation, self.dynamics) if m is not None for p in m.parameters()]
 
+    def field_parameter_groups(self) -> dict[str, list[nn.Parameter]]:
+        """The fields' parameters by optimiser group: ``"grid"`` (HexPlane planes) and ``"fields"`` (the rest)."""
+        grid = getattr(self.deformation, "grid", None)
+        grid_ids = {id(p) for p in grid.parameters()} if grid is not None else set()
+        params = self.field_parameters()
+        return {
+            "fields": [p for p in params if id(p) not in grid_ids],
+            "grid": [p for p in params if id(p) in grid_ids],
+        }
+
     def regularization_losses(self) -> dict[str, torch.Tensor]:
         """Named, weighted regularisers of the fields (the HexPlane's TV and time terms), for the
         dynamic stage's loss; empty for fields without any."""

@@ -21,8 +21,27 @@ def gaussian_optimizers(params: nn.ParameterDict, cfg, extent: float) -> dict[st
     return {name: torch.optim.Adam([params[name]], lr=lrs[name], eps=1e-15) for name in params.keys()}
 
 
-def field_optimizer(parameters: list[nn.Parameter], cfg) -> torch.optim.Optimizer | None:
-    return torch.optim.Adam(parameters, lr=cfg.field_lr, eps=1e-15) if parameters else None
+def field_optimizer(groups: dict[str, list[nn.Parameter]], cfg) -> torch.optim.Optimizer | None:
+    """One Adam for both fields. ``groups`` names the parameter groups (``"fields"``: the MLPs;
+    ``"grid"``: HexPlane planes, which 4DGS trains with a ten times larger rate); empty ones are left out."""
+    param_groups = [{"params": p, "lr": cfg.field_lr, "name": name} for name, p in groups.items() if p]
+    return torch.optim.Adam(param_groups, eps=1e-15) if param_groups else None
+
+
+def field_lrs(cfg, extent: float, dynamic_step: int, dynamic_total: int) -> dict[str, float]:
+    """Learning rate of every field group at this step of the dynamic stage (exponential decay)."""
+    frac = dynamic_step / max(dynamic_total, 1)
+    return {
+        "fields": log_interp(cfg.field_lr, cfg.field_lr_final, frac),
+        "grid": log_interp(cfg.grid_lr * extent, cfg.grid_lr_final * extent, frac),
+    }
+
+
+def set_group_lrs(opt: torch.optim.Optimizer | None, lrs: dict[str, float]) -> None:
+    """Set each group's rate by its name (groups restored from an older checkpoint have none: "fields")."""
+    if opt is not None:
+        for group in opt.param_groups:
+            group["lr"] = lrs[group.get("name", "fields")]
 
 
 def set_lr(opt: torch.optim.Optimizer | None, lr: float) -> None:
@@ -33,7 +52,3 @@ def set_lr(opt: torch.optim.Optimizer | None, lr: float) -> None:
 
 def means_lr(cfg, extent: float, step: int, total: int) -> float:
     return log_interp(cfg.means_lr * extent, cfg.means_lr_final * extent, step / max(total, 1))
-
-
-def field_lr(cfg, dynamic_step: int, dynamic_total: int) -> float:
-    return log_interp(cfg.field_lr, cfg.field_lr_final, dynamic_step / max(dynamic_total, 1))

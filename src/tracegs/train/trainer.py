@@ -24,7 +24,7 @@ from ..models.trace import TraceModel
 from ..utils import atomic_torch_save, atomic_write_text, resolve_device, seed_everything
 from .calibrate import choose_freeze_threshold
 from .losses import photometric_loss
-from .optim import field_lr, field_optimizer, gaussian_optimizers, means_lr, set_lr
+from .optim import field_lrs, field_optimizer, gaussian_optimizers, means_lr, set_group_lrs, set_lr
 from .strategy import DefaultStrategy, scene_extent_from_cameras
 
 
@@ -70,7 +70,7 @@ class Trainer:
         gaussians = initial_gaussians(cfg, self.aabb, self.device)
         self.model = TraceModel(cfg, gaussians, self.aabb, self.dt_frame).to(self.device)
         self.optimizers = gaussian_optimizers(self.model.gaussians, cfg.optim, self.extent)
-        self.field_opt = field_optimizer(self.model.field_parameters(), cfg.optim)
+        self.field_opt = field_optimizer(self.model.field_parameter_groups(), cfg.optim)
         self.strategy = DefaultStrategy(cfg.densify, self.extent, cfg.total_iterations)
         self.strategy_state = self.strategy.initialize_state()
         self.step, self.train_seconds = 0, 0.0
@@ -115,7 +115,7 @@ class Trainer:
         total = cfg.total_iterations
         set_lr(self.optimizers["means"], means_lr(cfg.optim, self.extent, step, total))
         if not static:
-            set_lr(self.field_opt, field_lr(cfg.optim, dyn_step, cfg.dynamic_iterations))
+            set_group_lrs(self.field_opt, field_lrs(cfg.optim, self.extent, dyn_step, cfg.dynamic_iterations))
 
         t_start = time.perf_counter()
         if static:
