@@ -120,13 +120,14 @@ class Bench:
     """Train nothing: tabulate the finished runs of these scenes and variants, skip the others."""
 
 
-def _dump(result, path: Path | None) -> None:
+def _dump(result, path: Path | None, console: str | None = None) -> None:
+    """Write ``result`` as JSON to ``path`` (if given) and print ``console``, or the JSON without it."""
     text = json.dumps(result, indent=2)
     if path is not None:
         from .utils import atomic_write_text
 
         atomic_write_text(path, text)
-    print(text)
+    print(text if console is None else console)
 
 
 def run_train(argv: list[str]) -> dict:
@@ -176,12 +177,10 @@ def main(argv: list[str] | None = None) -> None:
 
         a = tyro.cli(Eval, args=rest, prog=prog)
         from .eval.report import format_summary
-        from .utils import atomic_write_text
 
         result = evaluate_run(a.run, a.data, a.half_res, a.lpips, a.save_images, a.device)
         path = a.json or a.run / "eval.json"
-        atomic_write_text(path, json.dumps(result, indent=2))
-        print(format_summary(result) + f"\nall numbers: {path}")
+        _dump(result, path, console=format_summary(result) + f"\nall numbers: {path}")
     elif command == "metrics":
         from .eval.metrics import compare_images
 

@@ -7,6 +7,8 @@ motion against the ground truth.
 
 from __future__ import annotations
 
+import math
+
 SPLIT_COLUMNS = (
     ("frames", "frames", "{:d}"),
     ("psnr", "PSNR", "{:.2f}"),
@@ -35,7 +37,7 @@ def _horizon(extrap: dict, points: int = 5) -> str | None:
     per_time = extrap.get("per_time") or []
     if not per_time:
         return None
-    step = max(1, (len(per_time) - 1) // (points - 1)) if len(per_time) > 1 else 1
+    step = max(1, (len(per_time) - 1) // (points - 1))
     picked = per_time[::step]
     if picked[-1] is not per_time[-1]:
         picked.append(per_time[-1])
@@ -58,8 +60,7 @@ def _physics(physics: dict) -> list[str]:
     for part, p in sorted((physics or {}).get("parts", {}).items()):
         text = f"part {part}: future trajectory error {p['mean_trajectory_error']:.4f}"
         if "omega_rel_error" in p:
-            learned = sum(w * w for w in p["omega_learned"]) ** 0.5
-            truth = sum(w * w for w in p["omega_gt"]) ** 0.5
+            learned, truth = math.hypot(*p["omega_learned"]), math.hypot(*p["omega_gt"])
             text += f", |w| {learned:.3f} vs {truth:.3f} ({100 * p['omega_rel_error']:.1f}%)"
         if "axis_error_deg" in p:
             text += f", axis off by {p['axis_error_deg']:.2f} deg"
@@ -77,8 +78,8 @@ def format_summary(result: dict) -> str:
     if result.get("t_train_end") is not None:
         head += f"; future: t > {result['t_train_end']:.3f}"
     lines = [head, *_split_table(result)]
-    extrap = result.get("extrapolation", {})
-    lines += [x for x in (_horizon(extrap),) if x]
-    lines += [x for s in ("interpolation", "extrapolation") if (x := _parts(s, result.get(s, {})))]
+    optional = [_horizon(result.get("extrapolation", {}))]
+    optional += [_parts(s, result.get(s, {})) for s in ("interpolation", "extrapolation")]
+    lines += [x for x in optional if x]
     lines += _physics(result.get("physics"))
     return "\n".join(lines)
