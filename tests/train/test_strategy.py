@@ -94,3 +94,23 @@ def test_refinement_stops_by_a_fraction_of_short_runs():
         strategy.step_post_backward(params, opts, strategy.initialize_state(), step=2, render_info=info) == {}
     )
     assert torch.equal(params["opacities"], before)  # no reset after the stop either
+
+
+def test_growth_under_a_budget_takes_the_largest_gradients():
+    params, opts = _setup()
+    params["opacities"].data[:] = 5.0  # nothing is pruned
+    params["scales"].data[3:] = 2.0  # rows 3..5 are large -> split; rows 0..2 small -> cloned
+    strategy = DefaultStrategy(
+        DensifyConfig(refine_start=0, refine_every=1, grow_grad2d=1e-9, max_gaussians=8), scene_extent=10.0
+    )
+    means2d = torch.zeros(6, 2, requires_grad=True)
+    weights = torch.tensor([1.0, 5.0, 2.0, 6.0, 0.5, 3.0])  # gradient norm of each row, in pixels
+    (means2d[:, 0] * weights).sum().backward()
+    info = {"means2d": means2d, "radii": torch.ones(6), "width": 2, "height": 2}
+    before = params["means"].detach().clone()
+    report = strategy.step_post_backward(params, opts, strategy.initialize_state(), step=1, render_info=info)
+    _check_aligned(params, opts)
+    # budget 8 - 6 = 2: rows 3 (6.0, large -> split) and 1 (5.0, small -> cloned), not the first rows
+    assert report == {"cloned": 1, "split": 1, "pruned": 0}
+    assert params["means"].shape[0] == 8
+    assert torch.equal(params["means"][5], before[1])  # the clone follows the kept rows 0, 1, 2, 4, 5

@@ -119,8 +119,8 @@ class DefaultStrategy:
         max_scale = torch.exp(params["scales"]).max(dim=-1).values
         small = max_scale <= cfg.grow_scale3d * self.scene_extent
         budget = max(cfg.max_gaussians - params["means"].shape[0], 0)
-        clone = _limit(high & small, budget)
-        split = _limit(high & ~small, max(budget - int(clone.sum()), 0))
+        grow = _strongest(high, avg, budget)  # clone and split each add one Gaussian
+        clone, split = grow & small, grow & ~small
         n_clone, n_split = int(clone.sum()), int(split.sum())
         if n_clone:
             duplicate(params, optimizers, clone)
@@ -138,14 +138,16 @@ class DefaultStrategy:
         return {"cloned": n_clone, "split": n_split, "pruned": n_prune}
 
 
-def _limit(mask: torch.Tensor, budget: int) -> torch.Tensor:
-    """Keep at most ``budget`` of the selected entries (the first ones)."""
+def _strongest(mask: torch.Tensor, score: torch.Tensor, budget: int) -> torch.Tensor:
+    """Keep at most ``budget`` of the selected entries: those of highest ``score``. Under a Gaussian
+    budget growth then goes where the view-space gradient (the error) is largest, not to whichever
+    Gaussians happen to come first."""
     if int(mask.sum()) <= budget:
         return mask
-    idx = mask.nonzero().squeeze(1)[budget:]
-    mask = mask.clone()
-    mask[idx] = False
-    return mask
+    keep = torch.zeros_like(mask)
+    if budget > 0:
+        keep[torch.where(mask, score, float("-inf")).topk(budget).indices] = True
+    return keep
 
 
 def _update_rows(params, optimizers, fn_param, fn_moment) -> None:
