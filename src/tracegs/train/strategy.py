@@ -145,8 +145,7 @@ def _strongest(mask: torch.Tensor, score: torch.Tensor, budget: int) -> torch.Te
     if int(mask.sum()) <= budget:
         return mask
     keep = torch.zeros_like(mask)
-    if budget > 0:
-        keep[torch.where(mask, score, float("-inf")).topk(budget).indices] = True
+    keep[torch.where(mask, score, float("-inf")).topk(budget).indices] = True
     return keep
 
 

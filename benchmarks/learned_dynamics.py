@@ -1,0 +1,45 @@
+"""Learned dynamics of a trained TRACE run against its synthetic scene's ground-truth parts.
+
+Prints, for each ground-truth part (Gaussians within 0.03 of its surface) at a few training times and
+at the handover, the median learned particle velocity, equivalent acceleration a_bar, angular velocity
+w and angular acceleration eps, and the mean |weight| of f_trd's acceleration head (its init is
+N(0, 0.01^2)). Usage: .venv/bin/python benchmarks/learned_dynamics.py RUN [RUN ...]
+"""
+
+import argparse
+from pathlib import Path
+
+import torch
+
+from tracegs.eval.physics import _gt, _parts_at
+from tracegs.physics.integrate import particle_velocity
+from tracegs.train.trainer import load_run
+
+
+def _median(x: torch.Tensor):
+    return x.median(0).values.numpy().round(4)
+
+
+@torch.no_grad()
+def report(run: Path) -> None:
+    model, cfg, meta = load_run(run, device="cpu")
+    t_max, gt = meta["t_max"], _gt(Path(cfg.data))
+    head = model.dynamics.head.weight[model.dynamics.slices["acceleration"]]
+    print(f"{run}: acceleration head mean |w| {head.abs().mean().item():.4f}")
+    for t in (0.2, 0.4, 0.6, model.handover_time(t_max)):
+        means, owner = _parts_at(model, t, t_max, gt, 0.03)
+        p = model.query_dynamics(means, t)
+        for part in sorted(set(owner.tolist()) - {0}):
+            m = owner == part
+            v = particle_velocity(means[m], p.velocity[m], p.angular_velocity[m])
+            a_bar, w, eps = (
+                _median(x[m]) for x in (p.acceleration, p.angular_velocity, p.angular_acceleration)
+            )
+            print(f"  t={t:.3f} part {part}: v {_median(v)} a_bar {a_bar} w {w} eps {eps}")
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("runs", nargs="+", type=Path)
+    for run in ap.parse_args().runs:
+        report(run)
