@@ -71,6 +71,12 @@ class DynamicStageConfig:
     """The sampled time range grows in eighths of the training span over this fraction of the dynamic
     stage (the paper: ~7000 of 37000 iterations). A fraction, so that the late times of a shortened
     run are not introduced when the field learning rate has already decayed."""
+    acceleration_consistency: float = 0.0
+    """Weight of a loss that teaches f_trd's accelerations the time derivative of its own velocity
+    field: f_trd is queried again at (x_t, t) and its velocities compared with those the accelerations
+    predict from (x_t', t') (``physics.integrate.acceleration_consistency``). 0 = off (the paper). Over
+    a two-frame transport an acceleration moves a point by a few hundredths of a pixel, too little for
+    the photometric loss alone to learn it (docs/PHYSICS.md)."""
     warmup_deformation_steps: int = 0
     """Dynamic steps rendered with f_defo alone before the physics path is switched on."""
     handover_frames: float = 4.0

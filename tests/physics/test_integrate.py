@@ -8,6 +8,7 @@ import torch
 from tracegs.physics.integrate import (
     SCHEMES,
     DynamicsParams,
+    acceleration_consistency,
     equivalent_from_center,
     integrate,
     integrate_field,
@@ -336,3 +337,24 @@ def test_rk2_is_exact_for_rotation_angle_with_constant_angular_acceleration():
     _, q, _ = integrate(x0, q0, params, T, T / 3, "rk2")
     assert rotation_error(q, exact(x0, q0, T)[1]).max() < 1e-12
     assert math.isfinite(q.sum().item())
+
+
+@pytest.mark.parametrize("order", [2, 3])
+def test_acceleration_consistency_measures_the_acceleration_error_and_trains_only_accelerations(order):
+    """Later velocities made by the closed form params_at: the gap is 0 for the true accelerations and,
+    for accelerations off by d (velocities exact), exactly mean|d_a| + mean|d_eps| (in acceleration units)."""
+    g = torch.Generator().manual_seed(3)
+    true = DynamicsParams(*(torch.randn(16, 3, generator=g, dtype=f64) for _ in range(2 * order)))
+    s = -0.07
+    later = params_at(true, s)
+    assert acceleration_consistency(true, later, s).item() < 1e-12
+    d_a, d_e = torch.randn(16, 3, generator=g, dtype=f64), torch.randn(16, 3, generator=g, dtype=f64)
+    learned = true._replace(
+        acceleration=true.acceleration + d_a, angular_acceleration=true.angular_acceleration + d_e
+    )
+    learned = DynamicsParams(*(None if p is None else p.clone().requires_grad_() for p in learned))
+    gap = acceleration_consistency(learned, later, s)
+    torch.testing.assert_close(gap, d_a.abs().mean() + d_e.abs().mean())
+    gap.backward()
+    assert learned.velocity.grad is None and learned.angular_velocity.grad is None
+    assert learned.acceleration.grad.abs().sum() > 0

@@ -91,7 +91,7 @@ def test_straight_through_at_t_prime_is_exact(tiny_scene, tmp_path):
     """Default (METHOD.md): x = x_phys(x_t'.detach()) + (x_t' - x_t'.detach()), so the rendered position
     has the value of the physics result and the gradient of f_defo(t') with Jacobian exactly I."""
     model = _perturbed_model(tiny_scene, tmp_path / "a")
-    state = model.training_state(0.25, 0.5)
+    state = model.training_state(0.25, 0.5)[0]
     weights = torch.randn_like(state["means"])
     params = [model.gaussians["means"], *model.deformation.parameters()]
     got = torch.autograd.grad((state["means"] * weights).sum(), params, allow_unused=True)
@@ -107,7 +107,31 @@ def test_straight_through_at_t_prime_is_exact(tiny_scene, tmp_path):
     torch.testing.assert_close(state["means"].detach(), physics)
     # the other choice renders the same value; only the gradient's path differs
     other = _perturbed_model(tiny_scene, tmp_path / "b", dynamic__straight_through_time="t")
-    torch.testing.assert_close(other.training_state(0.25, 0.5)["means"].detach(), physics)
+    torch.testing.assert_close(other.training_state(0.25, 0.5)[0]["means"].detach(), physics)
+
+
+def test_acceleration_consistency_trains_only_the_acceleration_head(tiny_scene, tmp_path):
+    """The step's extra loss is named "acceleration"; with the features' gradient stopped it reaches
+    the acceleration rows of f_trd's head and nothing else (not the velocities, f_defo, the Gaussians)."""
+    off = _perturbed_model(tiny_scene, tmp_path / "off")
+    assert off.training_state(0.25, 0.5)[1] == {}
+    model = _perturbed_model(
+        tiny_scene,
+        tmp_path / "on",
+        dynamic__acceleration_consistency=0.5,
+        dynamics__detach_acceleration_features=True,
+    )
+    _, losses = model.training_state(0.25, 0.5)
+    assert set(losses) == {"acceleration"} and losses["acceleration"] > 0
+    losses["acceleration"].backward()
+    field = model.dynamics
+    rows = torch.zeros(field.head.weight.shape[0], dtype=torch.bool)
+    for name in ("acceleration", "angular_acceleration"):
+        rows[field.slices[name]] = True
+    assert field.head.weight.grad[rows].abs().sum() > 0
+    assert field.head.weight.grad[~rows].abs().sum() == 0
+    others = [*field.mlp.parameters(), *model.deformation.parameters(), *model.gaussians.values()]
+    assert all(p.grad is None or p.grad.abs().sum() == 0 for p in others)
 
 
 def test_straight_through_gradient_reaches_deformation_field(tiny_scene, tmp_path):
@@ -117,7 +141,7 @@ def test_straight_through_gradient_reaches_deformation_field(tiny_scene, tmp_pat
     with torch.no_grad():
         for p in model.field_parameters():
             p.add_(0.01 * torch.randn_like(p))
-    state = model.training_state(0.25, 0.5)
+    state = model.training_state(0.25, 0.5)[0]
     state["means"].sum().backward()
     grads = [p.grad for p in model.deformation.parameters()]
     assert any(g is not None and g.abs().sum() > 0 for g in grads)

@@ -50,6 +50,12 @@ class DynamicsConfig:
     """Std of the normal init of the raw-acceleration (and jerk) head weights; must be > 0 for them
     to learn (see the module docstring)."""
 
+    detach_acceleration_features: bool = False
+    """Compute the acceleration (and jerk) outputs from the MLP's features with their gradient stopped:
+    a loss on the accelerations (``dynamic.acceleration_consistency``) then trains only their head and
+    leaves the features, hence the velocities, to the photometric loss (measured: without the stop the
+    consistency loss degrades the velocity fit; tests/models/test_fields.py)."""
+
     @classmethod
     def light(cls, **overrides) -> DynamicsConfig:
         """The light preset of METHOD.md: L = 3, 6 x 128."""
@@ -102,7 +108,12 @@ class DynamicsField(nn.Module):
     def forward(self, x: torch.Tensor, t: float | torch.Tensor) -> DynamicsParams:
         """Dynamics parameters of particles at positions ``x`` [N, 3] at time ``t`` (float or [N, 1])."""
         u = torch.cat([x, time_column(t, x)], dim=-1)  # [N, 4]
-        raw = self.head(self.mlp(positional_encoding(u, self.cfg.num_frequencies))).to(x.dtype)
+        features = self.mlp(positional_encoding(u, self.cfg.num_frequencies))
+        raw = self.head(features)
+        if self.cfg.detach_acceleration_features and self.cfg.order >= 2:
+            first = self.slices["acceleration"].start
+            raw = torch.cat([raw[:, :first], self.head(features.detach())[:, first:]], dim=-1)
+        raw = raw.to(x.dtype)
         out = {name: raw[:, s] for name, s in self.slices.items()}
         for name in ("acceleration", "angular_acceleration", "jerk", "angular_jerk"):
             if name in out:

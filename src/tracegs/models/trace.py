@@ -15,7 +15,7 @@ import math
 import torch
 from torch import nn
 
-from ..physics.integrate import integrate, step
+from ..physics.integrate import acceleration_consistency, integrate, step
 from ..physics.so3 import quat_normalize
 from ..render import rasterize
 from .deformation import apply_deformation, make_deformation_field
@@ -100,8 +100,11 @@ class TraceModel(nn.Module):
         return type(params)(*[None if p is None else p.float() for p in params])
 
     # ----- the Gaussians of a training step -----------------------------------------------------
-    def training_state(self, t_prime: float, t: float, physics: bool = True) -> dict[str, torch.Tensor]:
-        """Gaussians for rendering frame ``t`` in stage 2 (METHOD.md, Training).
+    def training_state(
+        self, t_prime: float, t: float, physics: bool = True
+    ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+        """Gaussians for rendering frame ``t`` in stage 2 (METHOD.md, Training), and the step's
+        weighted auxiliary losses by name (``acceleration``, when ``dynamic.acceleration_consistency``).
 
         TRACE: deform to t', query f_trd at (x_t', t'), integrate t' -> t, and pass f_defo's gradient
         straight through to the rendered position (that of f_defo(t') by default, see
@@ -109,7 +112,7 @@ class TraceModel(nn.Module):
         """
         dyn = self.cfg.dynamic
         if self.dynamics is None or not physics:
-            return self.deform(t)
+            return self.deform(t), {}
         if self.deformation is None:  # ablation "no f_defo": dynamics carry the canonical Gaussians from 0
             t_prime = 0.0
         straight_through = dyn.straight_through and self.deformation is not None
@@ -121,10 +124,17 @@ class TraceModel(nn.Module):
         means, quats = integrate(
             x_start, start["quats"], params, t - t_prime, self.dt_max, method=dyn.integrator
         )[:2]
+        losses = {}
+        learns_accelerations = self.cfg.dynamics.order >= 2 and dyn.physics_derivation
+        if dyn.acceleration_consistency > 0 and learns_accelerations and t != t_prime:
+            with torch.no_grad():  # f_trd once more, where the integration ended
+                later = self.query_dynamics(means.detach(), t)
+            gap = acceleration_consistency(params, later, t - t_prime)
+            losses["acceleration"] = dyn.acceleration_consistency * gap
         if straight_through:
             shift = (target[0] if at_t else start)["means"]
             means = means + (shift - shift.detach())
-        return {"means": means, "quats": quats, "scales": start["scales"]}
+        return {"means": means, "quats": quats, "scales": start["scales"]}, losses
 
     # ----- any time, past or future -----------------------------------------------------------
     @torch.no_grad()

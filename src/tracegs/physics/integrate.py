@@ -91,6 +91,23 @@ def velocities_at(params: DynamicsParams, s: Time) -> tuple[torch.Tensor, torch.
     return evolved.velocity, evolved.angular_velocity
 
 
+def acceleration_consistency(params: DynamicsParams, later: DynamicsParams, s: float) -> torch.Tensor:
+    """Mean L1 gap, in acceleration units, between the velocities ``later`` observed ``s`` after the
+    query of ``params`` (e.g. f_trd queried again along the trajectory) and those that ``params``'
+    accelerations predict: ``|v + s a - v_later| / |s|`` for ``v_bar`` and ``w``.
+
+    ``params``' velocities and all of ``later`` are held fixed, so the gradient reaches only the
+    accelerations (and jerks): they learn the time derivative of the velocity field along the motion.
+    Zero when the velocity field changes exactly as the accelerations say (constant-acceleration motion).
+    """
+    held = params._replace(
+        velocity=params.velocity.detach(), angular_velocity=params.angular_velocity.detach()
+    )
+    v, w = velocities_at(held, s)
+    gap = (v - later.velocity.detach()).abs().mean() + (w - later.angular_velocity.detach()).abs().mean()
+    return gap / abs(s)
+
+
 def particle_velocity(
     x: torch.Tensor, velocity: torch.Tensor, angular_velocity: torch.Tensor
 ) -> torch.Tensor:

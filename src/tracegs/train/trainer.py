@@ -127,7 +127,9 @@ class Trainer:
                 self.model.begin_dynamic_stage()
             view = self.data[self._dynamic_view(dyn_step)]
             physics = dyn_step >= cfg.dynamic.warmup_deformation_steps
-            state = self.model.training_state(self._t_prime(view.time), view.time, physics=physics)
+            state, extra_losses = self.model.training_state(
+                self._t_prime(view.time), view.time, physics=physics
+            )
         t_fields = time.perf_counter()
         if cfg.random_background:
             background = torch.rand(3, device=self.device)
@@ -143,8 +145,8 @@ class Trainer:
         }
         self.strategy.step_pre_backward(info)
         losses = photometric_loss(out.image, target, cfg.optim.ssim_weight)
-        if not static:  # the model's named regularisers join the loss, each logged by name
-            for name, value in self.model.regularization_losses().items():
+        if not static:  # the model's named auxiliary losses join the loss, each logged by name
+            for name, value in (extra_losses | self.model.regularization_losses()).items():
                 losses[name] = value
                 losses["loss"] = losses["loss"] + value
         t_render = time.perf_counter()
