@@ -177,8 +177,10 @@ def cpu_fast() -> TrainConfig:
             refine_start=300, refine_stop=4500, refine_every=100, reset_every=3000, max_gaussians=7_000
         ),
         deformation=DeformationConfig(depth=4, width=64, skip_layer=2),
-        dynamics=DynamicsConfig(depth=4, width=64, num_frequencies=3),
-        dynamic=DynamicStageConfig(),
+        # f_trd: L = 6 (METHOD.md) and the acceleration consistency; measured on `slider`, where they
+        # make the carriage's acceleration learnable (docs/PHYSICS.md)
+        dynamics=DynamicsConfig(depth=4, width=64, num_frequencies=6, detach_acceleration_features=True),
+        dynamic=DynamicStageConfig(acceleration_consistency=0.01),
     )
     return cfg
 

@@ -40,6 +40,7 @@ ABLATIONS = [
     {"dynamic__integrator": "rk4"},
     {"deformation__kind": "hexplane"},
     {"bf16": True},
+    {"dynamic__acceleration_consistency": 0.0, "dynamics__detach_acceleration_features": False},
 ]
 
 
@@ -113,7 +114,7 @@ def test_straight_through_at_t_prime_is_exact(tiny_scene, tmp_path):
 def test_acceleration_consistency_trains_only_the_acceleration_head(tiny_scene, tmp_path):
     """The step's extra loss is named "acceleration"; with the features' gradient stopped it reaches
     the acceleration rows of f_trd's head and nothing else (not the velocities, f_defo, the Gaussians)."""
-    off = _perturbed_model(tiny_scene, tmp_path / "off")
+    off = _perturbed_model(tiny_scene, tmp_path / "off", dynamic__acceleration_consistency=0.0)
     assert off.training_state(0.25, 0.5)[1] == {}
     model = _perturbed_model(
         tiny_scene,
