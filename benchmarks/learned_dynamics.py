@@ -2,8 +2,10 @@
 
 Prints, for each ground-truth part (Gaussians within 0.03 of its surface) at a few training times and
 at the handover, the median learned particle velocity, equivalent acceleration a_bar, angular velocity
-w and angular acceleration eps, and the mean |weight| of f_trd's acceleration head (its init is
-N(0, 0.01^2)). Usage: .venv/bin/python benchmarks/learned_dynamics.py RUN [RUN ...]
+w and angular acceleration eps, the acceleration that f_trd's own velocities imply along the motion
+(``a_fd``: the change of v_bar from (x_t, t) to the integrated (x_t+dt, t + dt), dt = 2 frames, over dt,
+the target of ``dynamic.acceleration_consistency``), and the mean |weight| of f_trd's acceleration
+head (its init is N(0, 0.01^2)). Usage: .venv/bin/python benchmarks/learned_dynamics.py RUN [RUN ...]
 """
 
 import argparse
@@ -12,7 +14,7 @@ from pathlib import Path
 import torch
 
 from tracegs.eval.physics import _gt, _parts_at
-from tracegs.physics.integrate import particle_velocity
+from tracegs.physics.integrate import integrate, particle_velocity
 from tracegs.train.trainer import load_run
 
 
@@ -29,13 +31,18 @@ def report(run: Path) -> None:
     for t in (0.2, 0.4, 0.6, model.handover_time(t_max)):
         means, owner = _parts_at(model, t, t_max, gt, 0.03)
         p = model.query_dynamics(means, t)
+        dt = 2 * model.dt_max
+        later = integrate(means, model.deform(t)["quats"], p, dt, model.dt_max)[0]
+        a_fd = (model.query_dynamics(later, t + dt).velocity - p.velocity) / dt
         for part in sorted(set(owner.tolist()) - {0}):
             m = owner == part
             v = particle_velocity(means[m], p.velocity[m], p.angular_velocity[m])
             a_bar, w, eps = (
                 _median(x[m]) for x in (p.acceleration, p.angular_velocity, p.angular_acceleration)
             )
-            print(f"  t={t:.3f} part {part}: v {_median(v)} a_bar {a_bar} w {w} eps {eps}")
+            print(
+                f"  t={t:.3f} part {part}: v {_median(v)} a_bar {a_bar} a_fd {_median(a_fd[m])} w {w} eps {eps}"
+            )
 
 
 if __name__ == "__main__":
