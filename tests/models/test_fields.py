@@ -290,6 +290,22 @@ def test_light_preset():
     assert DynamicsConfig.light(order=3).order == 3
 
 
+def test_dynamics_encoding_with_its_own_time_frequencies():
+    x, t = points(), 0.3
+    joint = DynamicsField(dynamics_config())
+    torch.testing.assert_close(
+        joint.encode(x, t), positional_encoding(torch.cat([x, torch.full((N, 1), t)], -1), 3)
+    )
+    split = DynamicsField(dynamics_config(time_frequencies=5))
+    assert first_layer(split).shape == (32, encoding_dim(3, 3) + encoding_dim(1, 5))
+    encoded = split.encode(x, t)
+    torch.testing.assert_close(encoded[:, : encoding_dim(3, 3)], positional_encoding(x, 3))
+    torch.testing.assert_close(
+        encoded[:, encoding_dim(3, 3) :], positional_encoding(torch.full((N, 1), t), 5)
+    )
+    assert split(x, t).velocity.abs().max() == 0  # still "no motion" at init
+
+
 @pytest.mark.parametrize("kind", ["mlp", "hexplane", "dynamics"])
 def test_bf16_autocast_gives_float32(kind):
     field = (

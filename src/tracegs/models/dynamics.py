@@ -36,6 +36,11 @@ class DynamicsConfig:
     """Hidden width of the MLP."""
     num_frequencies: int = 6
     """Frequencies L of the encoding [u, sin(2^k u), cos(2^k u)] of the 4-vector (x, y, z, t)."""
+    time_frequencies: int | None = None
+    """Frequencies of the time channel when it should differ from the positions' (``num_frequencies``
+    then applies to x, y, z only); None: one L for the whole 4-vector (METHOD.md). Spatial frequencies
+    let f_trd separate parts, and also let a spatially varying v_bar stand in for a rotation
+    (docs/PHYSICS.md); time frequencies let velocities change within the span."""
     activation: str = "silu"
     """Hidden activation: "silu" (authors' code) or "relu" (the paper's Appendix)."""
     order: int = 2
@@ -89,7 +94,11 @@ class DynamicsField(nn.Module):
             raise ValueError(f"activation must be one of {sorted(ACTIVATIONS)}, got {cfg.activation!r}")
         self.cfg = cfg
         self.slices = cfg.output_slices()
-        in_dim = encoding_dim(4, cfg.num_frequencies)
+        in_dim = (
+            encoding_dim(4, cfg.num_frequencies)
+            if cfg.time_frequencies is None
+            else encoding_dim(3, cfg.num_frequencies) + encoding_dim(1, cfg.time_frequencies)
+        )
         layers: list[nn.Module] = []
         for i in range(cfg.depth):
             layers += [nn.Linear(in_dim if i == 0 else cfg.width, cfg.width), ACTIVATIONS[cfg.activation]()]
@@ -105,10 +114,20 @@ class DynamicsField(nn.Module):
             if name in self.slices:
                 nn.init.normal_(self.head.weight[self.slices[name]], std=self.cfg.acceleration_init_std)
 
+    def encode(self, x: torch.Tensor, t: float | torch.Tensor) -> torch.Tensor:
+        """The encoded 4-vector (x, y, z, t) [N, E]: one L for all four channels, or the positions'
+        and the time's own (``time_frequencies``)."""
+        time = time_column(t, x)
+        L = self.cfg.num_frequencies
+        if self.cfg.time_frequencies is None:
+            return positional_encoding(torch.cat([x, time], dim=-1), L)
+        return torch.cat(
+            [positional_encoding(x, L), positional_encoding(time, self.cfg.time_frequencies)], dim=-1
+        )
+
     def forward(self, x: torch.Tensor, t: float | torch.Tensor) -> DynamicsParams:
         """Dynamics parameters of particles at positions ``x`` [N, 3] at time ``t`` (float or [N, 1])."""
-        u = torch.cat([x, time_column(t, x)], dim=-1)  # [N, 4]
-        features = self.mlp(positional_encoding(u, self.cfg.num_frequencies))
+        features = self.mlp(self.encode(x, t))
         raw = self.head(features)
         if self.cfg.detach_acceleration_features and self.cfg.order >= 2:
             first = self.slices["acceleration"].start
