@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from tracegs.models.encoding import encoding_dim, positional_encoding, time_column
+from tracegs.models.encoding import positional_encoding, time_column
 from tracegs.physics.integrate import DynamicsParams, equivalent_from_center
 
 ACTIVATIONS = {"silu": nn.SiLU, "relu": nn.ReLU}
@@ -94,11 +94,7 @@ class DynamicsField(nn.Module):
             raise ValueError(f"activation must be one of {sorted(ACTIVATIONS)}, got {cfg.activation!r}")
         self.cfg = cfg
         self.slices = cfg.output_slices()
-        in_dim = (
-            encoding_dim(4, cfg.num_frequencies)
-            if cfg.time_frequencies is None
-            else encoding_dim(3, cfg.num_frequencies) + encoding_dim(1, cfg.time_frequencies)
-        )
+        in_dim = self.encode(torch.zeros(1, 3), 0.0).shape[-1]  # the encoding says its own width
         layers: list[nn.Module] = []
         for i in range(cfg.depth):
             layers += [nn.Linear(in_dim if i == 0 else cfg.width, cfg.width), ACTIVATIONS[cfg.activation]()]
