@@ -79,14 +79,15 @@ def update_section(name: str, body: str, path: str | Path | None = None) -> Path
 def merge_records(
     name: str, records: list[dict], keys: tuple[str, ...], folder: str | Path | None = None
 ) -> list[dict]:
-    """Store ``records`` in ``folder/NAME.json`` (default ``docs/results``), replacing stored records
-    with the same ``keys`` values and keeping the others; returns every stored record, old ones first."""
+    """Store ``records`` in ``folder/NAME.json`` (default ``docs/results``): a record replaces the stored
+    one with the same ``keys`` values in its place (so a rerun row stays where it was), the others are
+    kept, new keys go last; returns every stored record."""
     path = Path(folder if folder is not None else RESULTS_DIR) / f"{name}.json"
     stored = json.loads(path.read_text()) if path.is_file() else []
     if not isinstance(stored, list):
         raise ValueError(f"{path}: expected a JSON list of benchmark records")
     fresh = {tuple(r[k] for k in keys): r for r in records}
-    merged = [r for r in stored if tuple(r.get(k) for k in keys) not in fresh] + list(fresh.values())
+    merged = [fresh.pop(tuple(r.get(k) for k in keys), r) for r in stored] + list(fresh.values())
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(merged, indent=1) + "\n")

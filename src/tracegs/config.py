@@ -177,9 +177,12 @@ def cpu_fast() -> TrainConfig:
             refine_start=300, refine_stop=4500, refine_every=100, reset_every=3000, max_gaussians=7_000
         ),
         deformation=DeformationConfig(depth=4, width=64, skip_layer=2),
-        # f_trd: L = 6 (METHOD.md) and the acceleration consistency; measured on `slider`, where they
-        # make the carriage's acceleration learnable (docs/PHYSICS.md)
-        dynamics=DynamicsConfig(depth=4, width=64, num_frequencies=6, detach_acceleration_features=True),
+        # f_trd: L = 6 spatial frequencies (METHOD.md) and the acceleration consistency make the slider's
+        # accelerating carriage learnable; three time frequencies keep the velocities from following
+        # frame-to-frame noise on monocular captures (`bouncingballs`); docs/PHYSICS.md
+        dynamics=DynamicsConfig(
+            depth=4, width=64, num_frequencies=6, time_frequencies=3, detach_acceleration_features=True
+        ),
         dynamic=DynamicStageConfig(acceleration_consistency=0.01),
     )
     return cfg

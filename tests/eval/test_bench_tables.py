@@ -37,4 +37,4 @@ def test_merge_records_keeps_other_rows_and_replaces_same_key(tmp_path):
     table = merge_records(
         "t", [{"scene": "a", "variant": "TRACE", "psnr": 3.0}], ("scene", "variant"), tmp_path
     )
-    assert [(r["scene"], r["psnr"]) for r in table] == [("b", 2.0), ("a", 3.0)]
+    assert [(r["scene"], r["psnr"]) for r in table] == [("a", 3.0), ("b", 2.0)]  # replaced in its place
