@@ -178,8 +178,8 @@ def cpu_fast() -> TrainConfig:
         ),
         deformation=DeformationConfig(depth=4, width=64, skip_layer=2),
         # f_trd: L = 6 spatial frequencies (METHOD.md) and the acceleration consistency make the slider's
-        # accelerating carriage learnable; three time frequencies keep the velocities from following
-        # frame-to-frame noise on monocular captures (`bouncingballs`); docs/PHYSICS.md
+        # accelerating carriage learnable; three time frequencies: +2.6 dB on `bouncingballs`, within
+        # 0.9 dB elsewhere, learned rotations and accelerations closer to the truth (docs/PHYSICS.md)
         dynamics=DynamicsConfig(
             depth=4, width=64, num_frequencies=6, time_frequencies=3, detach_acceleration_features=True
         ),
