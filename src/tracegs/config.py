@@ -77,6 +77,14 @@ class DynamicStageConfig:
     predict from (x_t', t') (``physics.integrate.acceleration_consistency``). 0 = off (the paper). Over
     a two-frame transport an acceleration moves a point by a few hundredths of a pixel, too little for
     the photometric loss alone to learn it (docs/PHYSICS.md)."""
+    rotation_consistency: float = 0.0
+    """Weight of a loss that pulls each particle's angular velocity w towards the rotation of the rigid
+    motion that best fits its neighbours' velocities (``physics.integrate.rotation_consistency``): a
+    particle's velocity v_bar + w x x is rendered the same whether a translation or its body's rotation
+    makes it, but only the rotation is consistent across the neighbourhood. 0 = off (the paper)."""
+    rotation_neighbours: int = 8
+    """Neighbours per Gaussian for ``rotation_consistency`` (found in the canonical space, refreshed as
+    the set of Gaussians changes)."""
     warmup_deformation_steps: int = 0
     """Dynamic steps rendered with f_defo alone before the physics path is switched on."""
     handover_frames: float = 4.0

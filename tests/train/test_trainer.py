@@ -41,6 +41,7 @@ ABLATIONS = [
     {"deformation__kind": "hexplane"},
     {"bf16": True},
     {"dynamic__acceleration_consistency": 0.0, "dynamics__detach_acceleration_features": False},
+    {"dynamic__rotation_consistency": 0.01},
 ]
 
 
@@ -133,6 +134,31 @@ def test_acceleration_consistency_trains_only_the_acceleration_head(tiny_scene, 
     assert field.head.weight.grad[~rows].abs().sum() == 0
     others = [*field.mlp.parameters(), *model.deformation.parameters(), *model.gaussians.values()]
     assert all(p.grad is None or p.grad.abs().sum() == 0 for p in others)
+
+
+def test_rotation_consistency_trains_only_the_dynamics_field(tiny_scene, tmp_path):
+    """The step's "rotation" loss fits rigid motions over canonical nearest neighbours: its gradient
+    reaches f_trd, not f_defo or the Gaussians, and the neighbours are the nearest ones, found again
+    when the number of Gaussians changes."""
+    model = _perturbed_model(
+        tiny_scene, tmp_path / "on", dynamic__rotation_consistency=0.5, dynamic__acceleration_consistency=0.0
+    )
+    _, losses = model.training_state(0.25, 0.5)
+    assert set(losses) == {"rotation"} and losses["rotation"] > 0
+    losses["rotation"].backward()
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in model.dynamics.parameters())
+    others = [*model.deformation.parameters(), *model.gaussians.values()]
+    assert all(p.grad is None or p.grad.abs().sum() == 0 for p in others)
+    means = model.gaussians["means"].detach()
+    neighbours = model.canonical_neighbours()
+    d2 = torch.cdist(means, means).pow(2).fill_diagonal_(float("inf"))
+    assert neighbours.shape == (means.shape[0], model.cfg.dynamic.rotation_neighbours)
+    torch.testing.assert_close(d2.gather(1, neighbours), d2.topk(neighbours.shape[1], largest=False).values)
+    model.gaussians["means"] = torch.nn.Parameter(means[:-5])
+    assert model.canonical_neighbours().shape[0] == means.shape[0] - 5
+    reordered = means.flip(0)  # densification that keeps the count: a new parameter, new neighbours
+    model.gaussians["means"] = torch.nn.Parameter(reordered)
+    torch.testing.assert_close(model.canonical_neighbours(), neighbours.flip(0).neg().add(len(means) - 1))
 
 
 def test_straight_through_gradient_reaches_deformation_field(tiny_scene, tmp_path):

@@ -63,14 +63,20 @@ def random_gaussians(
     return create_gaussians(means, colors, sh_degree, **kwargs)
 
 
-def nearest_neighbour_distance(points: torch.Tensor, k: int = 3, chunk: int = 4096) -> torch.Tensor:
-    """Root mean squared distance to the ``k`` nearest other points, [N] (3DGS's initial scale)."""
-    out = []
+def nearest_neighbours(points: torch.Tensor, k: int, chunk: int = 4096) -> tuple[torch.Tensor, torch.Tensor]:
+    """Squared distances and indices of the ``k`` nearest other points, [N, k] each (closest first)."""
+    d2s, idxs = [], []
     for start in range(0, points.shape[0], chunk):
         d2 = torch.cdist(points[start : start + chunk], points).pow(2)
-        d2 = d2.topk(k + 1, dim=1, largest=False).values[:, 1:]  # drop the point itself
-        out.append(d2.mean(dim=1).sqrt())
-    return torch.cat(out)
+        d2, idx = d2.topk(min(k + 1, points.shape[0]), dim=1, largest=False)
+        d2s.append(d2[:, 1:])  # drop the point itself
+        idxs.append(idx[:, 1:])
+    return torch.cat(d2s), torch.cat(idxs)
+
+
+def nearest_neighbour_distance(points: torch.Tensor, k: int = 3, chunk: int = 4096) -> torch.Tensor:
+    """Root mean squared distance to the ``k`` nearest other points, [N] (3DGS's initial scale)."""
+    return nearest_neighbours(points, k, chunk)[0].mean(dim=1).sqrt()
 
 
 def empty_like_params(state: dict[str, torch.Tensor]) -> nn.ParameterDict:

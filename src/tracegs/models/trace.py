@@ -15,11 +15,12 @@ import math
 import torch
 from torch import nn
 
-from ..physics.integrate import acceleration_consistency, integrate, step
+from ..physics.integrate import acceleration_consistency, integrate, rotation_consistency, step
 from ..physics.so3 import quat_normalize
 from ..render import rasterize
 from .deformation import apply_deformation, make_deformation_field
 from .dynamics import DynamicsField
+from .gaussians import nearest_neighbours
 
 
 class TraceModel(nn.Module):
@@ -36,6 +37,9 @@ class TraceModel(nn.Module):
         self.dynamics = DynamicsField(cfg.dynamics) if cfg.method == "trace" else None
         self.freeze_threshold: float | None = None
         """Freeze threshold chosen after training (``train/calibrate.py``); None: the config's."""
+        # the rotation consistency's [N, k] neighbours, the means parameter they were found for and
+        # their age in calls (a plain dict: a Parameter held as an attribute would join the module)
+        self._neighbours: dict = {"of": None, "index": None, "age": 0}
 
     # ----- fields -----------------------------------------------------------------------------
     def field_parameters(self) -> list[nn.Parameter]:
@@ -104,7 +108,8 @@ class TraceModel(nn.Module):
         self, t_prime: float, t: float, physics: bool = True
     ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
         """Gaussians for rendering frame ``t`` in stage 2 (METHOD.md, Training), and the step's
-        weighted auxiliary losses by name (``acceleration``, when ``dynamic.acceleration_consistency``).
+        weighted auxiliary losses by name (``acceleration`` and ``rotation``, when their
+        ``dynamic.*_consistency`` weights are set).
 
         TRACE: deform to t', query f_trd at (x_t', t'), integrate t' -> t, and pass f_defo's gradient
         straight through to the rendered position (that of f_defo(t') by default, see
@@ -131,10 +136,24 @@ class TraceModel(nn.Module):
                 later = self.query_dynamics(means.detach(), t)
             gap = acceleration_consistency(params, later, t - t_prime)
             losses["acceleration"] = dyn.acceleration_consistency * gap
+        if dyn.rotation_consistency > 0:
+            gap = rotation_consistency(params, x_start.detach(), self.canonical_neighbours())
+            losses["rotation"] = dyn.rotation_consistency * gap
         if straight_through:
             shift = (target[0] if at_t else start)["means"]
             means = means + (shift - shift.detach())
         return {"means": means, "quats": quats, "scales": start["scales"]}, losses
+
+    def canonical_neighbours(self, refresh_every: int = 500) -> torch.Tensor:
+        """[N, k] nearest neighbours of each canonical Gaussian, found again when the Gaussians are
+        densified or pruned (the strategy then makes a new ``means`` parameter, even when the count
+        stays the same) and every ``refresh_every`` calls (the canonical means drift slowly)."""
+        param, cache = self.gaussians["means"], self._neighbours
+        if param is not cache["of"] or cache["age"] >= refresh_every:
+            k = self.cfg.dynamic.rotation_neighbours
+            cache.update(of=param, index=nearest_neighbours(param.detach(), k)[1], age=0)
+        cache["age"] += 1
+        return cache["index"]
 
     # ----- any time, past or future -----------------------------------------------------------
     @torch.no_grad()
