@@ -7,7 +7,8 @@ w and angular acceleration eps, the acceleration that f_trd's own velocities imp
 the target of ``dynamic.acceleration_consistency``), the angular velocity of the rigid motion that best
 fits f_defo's own motion of the part's Gaussians over the same dt (``w_defo``, Kabsch via scipy: what
 the deformation field has reconstructed, for telling a physics error from a reconstruction error),
-and the mean |weight| of f_trd's acceleration head (its init is N(0, 0.01^2)). Usage: .venv/bin/python benchmarks/learned_dynamics.py RUN [RUN ...]
+and the mean |weight| of f_trd's acceleration head (its init is N(0, 0.01^2)).
+Usage: .venv/bin/python benchmarks/learned_dynamics.py RUN [RUN ...]
 """
 
 import argparse
