@@ -137,7 +137,7 @@ class TraceModel(nn.Module):
             gap = acceleration_consistency(params, later, t - t_prime)
             losses["acceleration"] = dyn.acceleration_consistency * gap
         if dyn.rotation_consistency > 0:
-            gap = rotation_consistency(params, x_start.detach(), self.canonical_neighbours())
+            gap = rotation_consistency(params, x_start, self.canonical_neighbours())  # detaches x itself
             losses["rotation"] = dyn.rotation_consistency * gap
         if straight_through:
             shift = (target[0] if at_t else start)["means"]
