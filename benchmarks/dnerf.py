@@ -1,6 +1,8 @@
-"""TRACE vs DefGS on the D-NeRF scenes of ../shared/data (monocular; train on time <= 0.75).
+"""TRACE vs DefGS, or the ablations of the paper's Table 4, on the D-NeRF scenes of ../shared/data
+(monocular; train on time <= 0.75).
 
 Usage: .venv/bin/python benchmarks/dnerf.py [--scenes bouncingballs] [--downscale 2] [--preset cpu-fast]
+           [--methods TRACE DefGS | --ablations order=1 "no physics derivation" ...]
 The data is not part of the repository (see ../shared/data/README.md).
 """
 
@@ -11,7 +13,7 @@ from pathlib import Path
 
 import torch
 
-from tracegs.bench import METHODS, run_variant_table
+from tracegs.bench import ABLATIONS, METHODS, run_variant_table
 
 
 def main() -> None:
@@ -22,7 +24,13 @@ def main() -> None:
     ap.add_argument("--scenes", nargs="+", default=["bouncingballs"])
     ap.add_argument("--downscale", type=int, default=2)
     ap.add_argument("--preset", default="cpu-fast")
-    ap.add_argument("--methods", nargs="+", default=["TRACE", "DefGS"])
+    ap.add_argument("--methods", nargs="+", default=["TRACE", "DefGS"], choices=sorted(METHODS))
+    ap.add_argument(
+        "--ablations",
+        nargs="+",
+        choices=sorted(ABLATIONS),
+        help="rows of the ablation table (dnerf-ablations) instead of the method table",
+    )
     ap.add_argument("--out", type=Path, default=Path("runs/bench"))
     args = ap.parse_args()
     torch.set_num_threads(2)
@@ -30,14 +38,19 @@ def main() -> None:
     missing = [s for s in scenes if not Path(s, "transforms_train.json").is_file()]
     if missing:
         raise SystemExit(f"D-NeRF scene(s) not found: {', '.join(missing)}")
-    variants = {m: METHODS[m] for m in args.methods}
+    if args.ablations:
+        table, variants = "dnerf-ablations", {a: ABLATIONS[a] for a in args.ablations}
+        rows_flag = "--ablations " + " ".join(f'"{a}"' if " " in a else a for a in args.ablations)
+    else:
+        table, variants = "dnerf", {m: METHODS[m] for m in args.methods}
+        rows_flag = "--methods " + " ".join(args.methods)
     overrides = {"downscale": args.downscale, "t_train_end": 0.75}
     command = (
         f"benchmarks/dnerf.py --scenes {' '.join(args.scenes)} --downscale {args.downscale} "
-        f"--preset {args.preset} --methods {' '.join(args.methods)}"
+        f"--preset {args.preset} {rows_flag}"
     )
     rows = run_variant_table(
-        "dnerf",
+        table,
         variants,
         args.out,
         scenes,

@@ -354,3 +354,41 @@ def test_hexplane_fit_bounds_covers_the_bulk_and_ignores_far_floaters():
     lo, hi = grid.aabb
     assert torch.all(lo < -1.9) and torch.all(hi > 1.9)  # the bulk is inside
     assert torch.all(hi < 3.0)  # the floaters did not stretch the box
+
+
+def _randomised(module: torch.nn.Module) -> torch.nn.Module:
+    """Non-zero weights everywhere (the heads start at zero, which would hide any difference)."""
+    generator = torch.Generator().manual_seed(3)
+    with torch.no_grad():
+        for p in module.parameters():
+            p.copy_(0.3 * torch.randn(p.shape, generator=generator))
+    return module
+
+
+def _mlp_on_concatenation(field, x, t):
+    """The Deformable 3DGS MLP written out with its concatenated input and skip."""
+    inputs = field.encode(x, t)
+    h = inputs
+    for i, layer in enumerate(field.layers):
+        h = torch.relu(layer(h))
+        if i == field.cfg.skip_layer:
+            h = torch.cat([inputs, h], dim=-1)
+    return field.heads(h, x.dtype)
+
+
+@pytest.mark.parametrize("time_frequencies", [None, 5])
+def test_fields_fold_a_shared_time_into_the_bias_exactly(time_frequencies):
+    """``linear_of_parts``: one time for all points (a bias) or one per point gives the same
+    outputs as the layers on the concatenated encoding, for f_defo (with its skip) and f_trd
+    (one joint (x, t) encoding, whose time columns interleave, or the time's own)."""
+    x, t = points(), 0.3
+    deformation = _randomised(make_deformation_field(deformation_config("mlp")))
+    dynamics = _randomised(DynamicsField(dynamics_config(time_frequencies=time_frequencies)))
+    reference_trd = dynamics.head(dynamics.mlp(dynamics.encode(x, t)))
+    for time in (t, torch.full((N, 1), t)):
+        for ours, ref in zip(deformation(x, time), _mlp_on_concatenation(deformation, x, t), strict=True):
+            torch.testing.assert_close(ours, ref, atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(dynamics(x, time).velocity, reference_trd[:, :3], atol=1e-5, rtol=1e-5)
+    # per-point times differ from a shared one where they differ
+    varied = torch.linspace(0, 1, N)[:, None]
+    assert not torch.allclose(deformation(x, varied)[0], deformation(x, t)[0])

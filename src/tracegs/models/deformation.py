@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
-from tracegs.models.encoding import encoding_dim, positional_encoding, time_column
+from tracegs.models.encoding import encoding_dim, linear_of_parts, positional_encoding, time_column, time_rows
 from tracegs.models.hexplane import HexPlane, HexPlaneConfig
 from tracegs.physics.so3 import quat_multiply, quat_normalize
 
@@ -96,13 +96,24 @@ class DeformationField(nn.Module):
         )
 
     def forward(self, x0: torch.Tensor, t: float | torch.Tensor) -> DeformationOutput:
-        """``(dx, dq, dlog_s)`` of the Gaussians at canonical positions ``x0`` [N, 3] at time ``t``."""
-        inputs = self.encode(x0, t)
-        h = inputs
-        for i, layer in enumerate(self.layers):
-            h = torch.relu(layer(h))
-            if i == self.cfg.skip_layer:
-                h = torch.cat([inputs.to(h.dtype), h], dim=-1)
+        """``(dx, dq, dlog_s)`` of the Gaussians at canonical positions ``x0`` [N, 3] at time ``t``.
+
+        The same function as the MLP on ``encode(x0, t)`` with the skip's concatenation, evaluated
+        part by part (``linear_of_parts``): a time shared by all points enters as a bias.
+        """
+        ex = encoding_dim(3, self.cfg.position_frequencies)
+        e = ex + encoding_dim(1, self.cfg.time_frequencies)
+        inputs = [
+            (positional_encoding(x0, self.cfg.position_frequencies), slice(0, ex)),
+            (positional_encoding(time_rows(t, x0), self.cfg.time_frequencies), slice(ex, e)),
+        ]
+        skip = None if self.cfg.skip_layer is None else self.cfg.skip_layer + 1
+        h = torch.relu(linear_of_parts(self.layers[0], inputs))
+        for i, layer in enumerate(self.layers[1:], start=1):
+            if i == skip:
+                h = torch.relu(linear_of_parts(layer, [*inputs, (h, slice(e, None))]))
+            else:
+                h = torch.relu(layer(h))
         return self.heads(h, x0.dtype)
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from tracegs.models.encoding import positional_encoding, time_column
+from tracegs.models.encoding import encoding_dim, linear_of_parts, positional_encoding, time_column, time_rows
 from tracegs.physics.integrate import DynamicsParams, equivalent_from_center
 
 ACTIVATIONS = {"silu": nn.SiLU, "relu": nn.ReLU}
@@ -95,6 +95,9 @@ class DynamicsField(nn.Module):
         self.cfg = cfg
         self.slices = cfg.output_slices()
         in_dim = self.encode(torch.zeros(1, 3), 0.0).shape[-1]  # the encoding says its own width
+        channel = torch.arange(in_dim) % 4  # the joint (x, y, z, t) encoding's channel of each column
+        self.register_buffer("position_columns", torch.nonzero(channel != 3)[:, 0], persistent=False)
+        self.register_buffer("time_columns", torch.nonzero(channel == 3)[:, 0], persistent=False)
         layers: list[nn.Module] = []
         for i in range(cfg.depth):
             layers += [nn.Linear(in_dim if i == 0 else cfg.width, cfg.width), ACTIVATIONS[cfg.activation]()]
@@ -121,9 +124,28 @@ class DynamicsField(nn.Module):
             [positional_encoding(x, L), positional_encoding(time, self.cfg.time_frequencies)], dim=-1
         )
 
+    def _input_parts(self, x: torch.Tensor, t: float | torch.Tensor) -> list:
+        """``encode(x, t)`` as (values, first-layer columns) pairs for ``linear_of_parts``: the
+        positions' encoding [N, Ex] and the time's [1 or N, Et], wherever ``encode`` puts them."""
+        L, time = self.cfg.num_frequencies, time_rows(t, x)
+        if self.cfg.time_frequencies is None:  # one 4-vector encoding: time is every 4th channel
+            return [
+                (positional_encoding(x, L), self.position_columns),
+                (positional_encoding(time, L), self.time_columns),
+            ]
+        ex = encoding_dim(3, L)
+        return [
+            (positional_encoding(x, L), slice(0, ex)),
+            (positional_encoding(time, self.cfg.time_frequencies), slice(ex, None)),
+        ]
+
     def forward(self, x: torch.Tensor, t: float | torch.Tensor) -> DynamicsParams:
-        """Dynamics parameters of particles at positions ``x`` [N, 3] at time ``t`` (float or [N, 1])."""
-        features = self.mlp(self.encode(x, t))
+        """Dynamics parameters of particles at positions ``x`` [N, 3] at time ``t`` (float or [N, 1]).
+
+        The MLP on ``encode(x, t)``, its first layer evaluated part by part (``linear_of_parts``: a
+        time shared by all points enters as a bias)."""
+        first = linear_of_parts(self.mlp[0], self._input_parts(x, t))
+        features = self.mlp[2:](self.mlp[1](first))
         raw = self.head(features)
         if self.cfg.detach_acceleration_features and self.cfg.order >= 2:
             first = self.slices["acceleration"].start

@@ -36,3 +36,34 @@ def time_column(t: float | torch.Tensor, like: torch.Tensor) -> torch.Tensor:
     n = like.shape[0]
     t = torch.as_tensor(t, dtype=like.dtype, device=like.device)
     return t.reshape(-1, 1).expand(n, 1) if t.numel() == 1 else t.reshape(n, 1)
+
+
+def time_rows(t: float | torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """The time(s) ``t`` as a column with the device and dtype of ``like`` [N, ...]: [1, 1] when one
+    time holds for every point (then its encoding is computed once), else [N, 1]."""
+    t = torch.as_tensor(t, dtype=like.dtype, device=like.device)
+    return t.reshape(1, 1) if t.numel() == 1 else t.reshape(like.shape[0], 1)
+
+
+def linear_of_parts(
+    layer: torch.nn.Linear, parts: list[tuple[torch.Tensor, slice | torch.Tensor]]
+) -> torch.Tensor:
+    """``layer`` applied to the concatenation of ``parts`` without building it.
+
+    Each part is its values [N, D_k] or [1, D_k] and the columns of ``layer.weight`` they occupy (a
+    slice or an index tensor). A part with a single row (the encoded time of a frame, the same for
+    every point) is folded into the bias: the fields' inputs are mostly ``[PE(x), PE(t)]`` with one t
+    per call, so this saves the [N, E] concatenation and the time's share of the first GEMM (and the
+    same again at Deformable 3DGS's skip layer). Equal to ``layer(cat)`` up to float rounding.
+    """
+    bias, out = layer.bias, None
+    for values, columns in parts:
+        weight = layer.weight[:, columns]
+        if values.shape[0] == 1:
+            bias = torch.nn.functional.linear(values, weight, bias)
+        else:
+            term = torch.nn.functional.linear(values, weight)
+            out = term if out is None else out + term
+    if out is None:
+        raise ValueError("linear_of_parts: every part has a single row; nothing to broadcast over")
+    return out if bias is None else out + bias

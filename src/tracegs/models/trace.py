@@ -84,8 +84,11 @@ class TraceModel(nn.Module):
             return [{"means": g["means"], "quats": g["quats"], "scales": g["scales"]} for _ in times]
         n = g["means"].shape[0]
         x0 = g["means"].detach() if self.cfg.deformation.detach_input else g["means"]
-        x = x0.repeat(len(times), 1)
-        t = torch.tensor(times, dtype=x.dtype, device=x.device).repeat_interleave(n)[:, None]
+        if len(times) == 1:  # one time for all points: the field takes it as a bias (``linear_of_parts``)
+            x, t = x0, times[0]
+        else:
+            x = x0.repeat(len(times), 1)
+            t = torch.tensor(times, dtype=x.dtype, device=x.device).repeat_interleave(n)[:, None]
         with self.autocast():
             dx, dq, dlog_s = self.deformation(x, t)
         states = []
