@@ -389,6 +389,11 @@ def test_fields_fold_a_shared_time_into_the_bias_exactly(time_frequencies):
         for ours, ref in zip(deformation(x, time), _mlp_on_concatenation(deformation, x, t), strict=True):
             torch.testing.assert_close(ours, ref, atol=1e-5, rtol=1e-5)
         torch.testing.assert_close(dynamics(x, time).velocity, reference_trd[:, :3], atol=1e-5, rtol=1e-5)
+    # a single point: every part is one row
+    one = _mlp_on_concatenation(deformation, x[:1], t)
+    for ours, ref in zip(deformation(x[:1], t), one, strict=True):
+        torch.testing.assert_close(ours, ref, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(dynamics(x[:1], t).velocity, reference_trd[:1, :3], atol=1e-5, rtol=1e-5)
     # per-point times differ from a shared one where they differ
     varied = torch.linspace(0, 1, N)[:, None]
     assert not torch.allclose(deformation(x, varied)[0], deformation(x, t)[0])

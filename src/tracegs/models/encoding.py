@@ -64,6 +64,6 @@ def linear_of_parts(
         else:
             term = torch.nn.functional.linear(values, weight)
             out = term if out is None else out + term
-    if out is None:
-        raise ValueError("linear_of_parts: every part has a single row; nothing to broadcast over")
+    if out is None:  # a single point: every part was folded, the result is the bias row
+        return bias
     return out if bias is None else out + bias
