@@ -28,21 +28,19 @@ def positional_encoding(u: torch.Tensor, num_frequencies: int, include_input: bo
     return torch.cat(parts, dim=-1)
 
 
-def time_column(t: float | torch.Tensor, like: torch.Tensor) -> torch.Tensor:
-    """The time(s) ``t`` as a column [N, 1] with the device and dtype of ``like`` [N, ...].
+def time_rows(t: float | torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """The time(s) ``t`` as a column with the device and dtype of ``like`` [N, ...]: [1, 1] when one
+    time holds for every point (then its encoding is computed once), else [N, 1].
 
     ``t`` may be a Python number, a 0-d / [1] tensor (one time for all points), or [N] / [N, 1].
     """
-    n = like.shape[0]
-    t = torch.as_tensor(t, dtype=like.dtype, device=like.device)
-    return t.reshape(-1, 1).expand(n, 1) if t.numel() == 1 else t.reshape(n, 1)
-
-
-def time_rows(t: float | torch.Tensor, like: torch.Tensor) -> torch.Tensor:
-    """The time(s) ``t`` as a column with the device and dtype of ``like`` [N, ...]: [1, 1] when one
-    time holds for every point (then its encoding is computed once), else [N, 1]."""
     t = torch.as_tensor(t, dtype=like.dtype, device=like.device)
     return t.reshape(1, 1) if t.numel() == 1 else t.reshape(like.shape[0], 1)
+
+
+def time_column(t: float | torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """``time_rows`` as a full column [N, 1] (one time expanded to every point, without a copy)."""
+    return time_rows(t, like).expand(like.shape[0], 1)
 
 
 def linear_of_parts(
