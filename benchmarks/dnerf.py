@@ -2,7 +2,7 @@
 (monocular; train on time <= 0.75).
 
 Usage: .venv/bin/python benchmarks/dnerf.py [--scenes bouncingballs] [--downscale 2] [--preset cpu-fast]
-           [--methods TRACE DefGS | --ablations order=1 "no physics derivation" ...]
+           [--methods TRACE DefGS | --ablations order=1 "no physics derivation" ...] [--validation 0.8]
 The data is not part of the repository (see ../shared/data/README.md).
 """
 
@@ -31,6 +31,11 @@ def main() -> None:
         choices=sorted(ABLATIONS),
         help="rows of the ablation table (dnerf-ablations) instead of the method table",
     )
+    ap.add_argument(
+        "--validation",
+        type=float,
+        help="train on this fraction of the training span and score its later frames (choosing settings)",
+    )
     ap.add_argument("--out", type=Path, default=Path("runs/bench"))
     args = ap.parse_args()
     torch.set_num_threads(2)
@@ -48,6 +53,7 @@ def main() -> None:
     command = (
         f"benchmarks/dnerf.py --scenes {' '.join(args.scenes)} --downscale {args.downscale} "
         f"--preset {args.preset} {rows_flag}"
+        + ("" if args.validation is None else f" --validation {args.validation:g}")
     )
     rows = run_variant_table(
         table,
@@ -58,11 +64,11 @@ def main() -> None:
         800 // (2 * args.downscale),
         overrides,
         command=command,
+        validation=args.validation,
     )
+    future = "val_future_psnr" if args.validation is not None else "extrap_psnr"
     for r in rows:
-        print(
-            r["scene"], r["variant"], f"interp {r['interp_psnr']:.2f} dB", f"extrap {r['extrap_psnr']:.2f} dB"
-        )
+        print(r["scene"], r["variant"], f"interp {r['interp_psnr']:.2f} dB", f"{future} {r[future]:.2f} dB")
 
 
 if __name__ == "__main__":

@@ -151,6 +151,27 @@ def _set_aside(run: Path) -> None:
     print(f"{run}: made with other settings; moved to {previous} and retraining")
 
 
+def validation_cut(
+    data: Path, fraction: float, t_end: float | None = None, downscale: int = 1
+) -> tuple[float, float]:
+    """(t_cut, t_end) of a validation future: ``t_end`` is the training span's end (the scene's
+    ``t_train_end``, else its last training time) and ``t_cut`` the last training time at or before
+    ``fraction`` of it. Training stops at t_cut; the training frames after it are the future scored."""
+    from .data.blender import load_scene
+
+    if not 0.0 < fraction < 1.0:
+        raise ValueError(f"validation fraction {fraction}: must lie strictly between 0 and 1")
+    train = load_scene(data, "train", downscale)
+    times = sorted({f.time for f in train.frames})
+    t_end = t_end if t_end is not None else train.t_train_end if train.t_train_end is not None else times[-1]
+    before = [t for t in times if t <= fraction * t_end + 1e-9]
+    if len(before) < 2 or not any(before[-1] < t <= t_end + 1e-9 for t in times):
+        raise ValueError(
+            f"{data}: too few training times to cut a validation future at {fraction} x {t_end:g}"
+        )
+    return before[-1], t_end
+
+
 def run_variant_table(
     name: str,
     variants: dict[str, dict],
@@ -162,12 +183,15 @@ def run_variant_table(
     update_docs: bool = True,
     train: bool = True,
     command: str | None = None,
+    validation: float | None = None,
 ) -> list[dict]:
     """Train and evaluate every variant (config overrides) on every scene; one table row each.
 
     A run folder that already holds ``eval.json`` for the same config is reused, so an interrupted
     benchmark continues where it stopped. ``command`` is the command line recorded with the rows
-    (default: the ``tracegs bench`` line that makes them).
+    (default: the ``tracegs bench`` line that makes them). With ``validation`` (a fraction of the
+    training span) every run trains up to that cut and is scored on the training cameras' later
+    frames (``validation_cut``): the table for choosing settings, which never sees the test splits.
     """
     from .config import apply_overrides, config_to_dict
     from .eval.protocol import evaluate_run
@@ -178,12 +202,19 @@ def run_variant_table(
         data = scene_folder(out, scene, resolution, synthesize_missing=train)
         if data is None:
             continue
+        scene_overrides, future_end, suffix = dict(overrides or {}), None, ""
+        if validation is not None:
+            downscale = apply_overrides(make_config(preset, data=data), scene_overrides).downscale
+            t_cut, future_end = validation_cut(
+                data, validation, scene_overrides.get("t_train_end"), downscale
+            )
+            scene_overrides["t_train_end"], suffix = t_cut, f"_val{validation:g}"
         for label, variant in variants.items():
             # rows with the same settings share one run folder (the ablation "dt=2" is the TRACE row)
             same_as_trace = not variant or variant == METHODS["TRACE"]
             slug = "TRACE" if same_as_trace else label.replace(" ", "_").replace("=", "")
-            run = Path(out) / "runs" / f"{Path(scene).name}_{slug}_{preset}"
-            cfg = apply_overrides(make_config(preset, data=data, run=run), {**(overrides or {}), **variant})
+            run = Path(out) / "runs" / f"{Path(scene).name}_{slug}_{preset}{suffix}"
+            cfg = apply_overrides(make_config(preset, data=data, run=run), {**scene_overrides, **variant})
             done = run / "eval.json"
             same = (run / "config.json").is_file() and json.loads(
                 (run / "config.json").read_text()
@@ -195,12 +226,30 @@ def run_variant_table(
                 if run.exists() and not same:  # made with other settings: keep it aside, start afresh
                     _set_aside(run)
                 summary = Trainer(cfg, progress=False).train()
-                result = evaluate_run(run)
+                result = evaluate_run(run, future_end=future_end)
                 done.write_text(json.dumps(result, indent=2))
             else:
                 summary = json.loads((run / "summary.json").read_text())
             result = json.loads(done.read_text())
             i, e = result["interpolation"], result["extrapolation"]
+            if validation is not None:
+                records.append(
+                    {
+                        "scene": Path(scene).name,
+                        "variant": label,
+                        "t_cut": round(result["t_train_end"], 4),
+                        "t_end": round(result["future_end"], 4),
+                        "val_future_psnr": e["mae_psnr"],
+                        "val_future_ssim": e["ssim"],
+                        "val_future_lpips": e.get("lpips_vgg", float("nan")),
+                        "interp_psnr": i["mae_psnr"],
+                        "train_s": summary["train_seconds"],
+                        "iterations": summary["iterations"],
+                        "gaussians": summary["gaussians"],
+                        "ms_per_it": summary["ms_per_iteration"],
+                    }
+                )
+                continue
             records.append(
                 {
                     "scene": Path(scene).name,
@@ -222,14 +271,13 @@ def run_variant_table(
                 }
             )
     if update_docs and records:
-        command = (
-            command
-            or f"tracegs bench {name} --scenes {' '.join(scenes)} --preset {preset}{_flags(overrides)}"
-        )
+        flags = _flags(overrides) + ("" if validation is None else f" --validation {validation:g}")
+        command = command or f"tracegs bench {name} --scenes {' '.join(scenes)} --preset {preset}{flags}"
         stamp = {"command": command, "machine": machine_description()}
-        section = f"{name}-{preset}{_flags(overrides).replace(' ', '')}"
+        section = f"{name}-{preset}{flags.replace(' ', '')}"
         table = merge_records(section, [r | stamp for r in records], ("scene", "variant"))
-        update_section(section, variant_table_markdown(name, preset, resolution, table))
+        title = name if validation is None else f"{name}, validation future"
+        update_section(section, variant_table_markdown(title, preset, resolution, table))
     return records
 
 
@@ -247,13 +295,24 @@ def variant_table_markdown(name: str, preset: str, resolution: int, records: lis
     provenance = "\n".join(
         f"- {', '.join(rows)}: `{c}` on {m}" + (f" ({n})" if n else "") for (c, m, n), rows in groups.items()
     )
+    if "val_future_psnr" in records[0]:
+        legend = (
+            "Validation future, for choosing settings without the test splits: each run trains on "
+            "t <= `t_cut` and is scored on the training cameras' frames at `t_cut` < t <= `t_end` (the rest "
+            "of the training span); `interp_psnr` is the held-out cameras at t <= `t_cut`. PSNR is "
+            "MAE-PSNR, LPIPS is VGG.\n\n"
+        )
+    else:
+        legend = (
+            "PSNR is MAE-PSNR (the paper's), LPIPS is VGG; `extrap_psnr_new_cams` is the extrapolation "
+            "PSNR of the held-out cameras alone (future time and a new view); `paper_extrap` is the "
+            "paper's extrapolation PSNR / SSIM / LPIPS for the corresponding row (Dynamic Multipart mean; "
+            "its scenes differ from ours).\n\n"
+        )
     return (
         f"## {name} ({preset}, {resolution} px)\n\n"
         f"Rows measured by (raw records in `docs/results/`):\n{provenance}\n\n"
-        "PSNR is MAE-PSNR (the paper's), LPIPS is VGG; `extrap_psnr_new_cams` is the extrapolation PSNR "
-        "of the held-out cameras alone (future time and a new view); `paper_extrap` is the paper's "
-        "extrapolation PSNR / SSIM / LPIPS for the corresponding row (Dynamic Multipart mean; its scenes "
-        "differ from ours).\n\n"
+        + legend
         + markdown_table(records, cols)
         + "\n\nTime per training iteration (ms), averaged over the whole run:\n\n"
         + markdown_table(timing_rows, list(timing_rows[0].keys()))

@@ -118,6 +118,9 @@ class Bench:
     """Subset of rows to run (e.g. TRACE DefGS, or dt=1 "no f_defo"); empty = all."""
     report_only: bool = False
     """Train nothing: tabulate the finished runs of these scenes and variants, skip the others."""
+    validation: float | None = None
+    """Choose settings without the test splits: train on this fraction of the training span (e.g. 0.8)
+    and score the training cameras' later frames (methods and ablations)."""
 
 
 def _dump(result, path: Path | None, console: str | None = None) -> None:
@@ -215,6 +218,7 @@ def main(argv: list[str] | None = None) -> None:
                     a.resolution,
                     overrides,
                     train=not a.report_only,
+                    validation=a.validation,
                 )
             if a.json is not None:
                 _dump(records, a.json)

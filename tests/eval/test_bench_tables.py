@@ -1,9 +1,12 @@
 """Method/ablation tables: runs are reused when their settings match, shared between identical rows,
 and `report_only` trains nothing."""
 
+import json
+
+import pytest
 from tests.conftest import write_tiny_scene
 
-from tracegs.bench import ABLATIONS, METHODS, run_variant_table
+from tracegs.bench import ABLATIONS, METHODS, run_variant_table, validation_cut
 
 
 def test_rows_reuse_and_share_runs(tmp_path):
@@ -38,3 +41,29 @@ def test_merge_records_keeps_other_rows_and_replaces_same_key(tmp_path):
         "t", [{"scene": "a", "variant": "TRACE", "psnr": 3.0}], ("scene", "variant"), tmp_path
     )
     assert [(r["scene"], r["psnr"]) for r in table] == [("a", 3.0), ("b", 2.0)]  # replaced in its place
+
+
+def test_validation_table_trains_to_the_cut_and_scores_the_rest_of_the_training_span(tmp_path):
+    scene = write_tiny_scene(tmp_path / "scene", n_cams=3, n_times=5, size=32)  # times 0, 0.25 ... 1
+    assert validation_cut(scene, 0.8) == (0.5, 0.75)  # the last time at or before 0.6
+    assert validation_cut(scene, 0.5, t_end=1.0) == (0.5, 1.0)
+    for fraction in (0.2, 1.0):  # one training time before the cut; no future left
+        with pytest.raises(ValueError, match="validation"):
+            validation_cut(scene, fraction)
+    out = tmp_path / "bench"
+    rows = run_variant_table(
+        "ablations",
+        {"dt=2": ABLATIONS["dt=2"]},
+        out,
+        (str(scene),),
+        "tiny",
+        update_docs=False,
+        validation=0.8,
+    )
+    assert [(r["t_cut"], r["t_end"]) for r in rows] == [(0.5, 0.75)]
+    run = out / "runs" / "scene_TRACE_tiny_val0.8"
+    assert json.loads((run / "config.json").read_text())["t_train_end"] == 0.5
+    result = json.loads((run / "eval.json").read_text())
+    assert result["future_end"] == 0.75 and result["extrapolation"]["frames"] == 2  # 2 training cameras
+    assert rows[0]["val_future_psnr"] == result["extrapolation"]["mae_psnr"]
+    assert not (out / "runs" / "scene_TRACE_tiny").exists()  # the test-protocol run is a separate folder

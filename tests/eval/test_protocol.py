@@ -32,6 +32,16 @@ def test_splits_follow_the_protocol(trained_run):
     assert {f.camera_id for f in splits["interpolation"]} == {2}  # the held-out camera only
 
 
+def test_validation_future_holds_only_later_training_frames(trained_run):
+    scene, _ = trained_run
+    splits = split_frames(scene, t_train_end=0.5, future_end=0.75, with_cameras=True)
+    future = splits["extrapolation"]
+    # the training cameras (0, 1) at the one training time after the cut; no test frame (t = 1.0)
+    assert sorted((f.camera_id, f.time) for _, f in future) == [(0, 0.75), (1, 0.75)]
+    assert {c for c, _ in future} == {"train_cameras"}
+    assert sorted(f.time for _, f in splits["interpolation"]) == [0.0, 0.25, 0.5]
+
+
 def test_eval_json_has_every_field(trained_run, tmp_path, capsys):
     pytest.importorskip("tracegs.eval.lpips")
     _, run = trained_run

@@ -2,6 +2,11 @@
 
 interpolation = held-out (val) cameras at t <= t_train_end; extrapolation = every camera of every
 split at t > t_train_end. Checkpoints and settings are never chosen on these frames.
+
+For choosing settings there is a validation future instead: train on an earlier part of the training
+span (``t_train_end`` set before the scene's), and score the training cameras' frames between that
+cut and the scene's training end (``future_end``). Those frames belong to the training split, so
+nothing of the test protocol is looked at.
 """
 
 from __future__ import annotations
@@ -18,11 +23,16 @@ from .metrics import mae_psnr, mse, psnr, ssim
 
 
 def split_frames(
-    data: Path, t_train_end: float, downscale: int = 1, with_cameras: bool = False
+    data: Path,
+    t_train_end: float,
+    downscale: int = 1,
+    with_cameras: bool = False,
+    future_end: float | None = None,
 ) -> dict[str, list[Frame]] | dict[str, list[tuple[str, Frame]]]:
     """Frames of the interpolation and extrapolation splits (deduplicated by image path); with
     ``with_cameras``, ``(cameras, frame)`` pairs where ``cameras`` says whether a training camera
-    took the frame ("train_cameras") or not ("new_cameras")."""
+    took the frame ("train_cameras") or not ("new_cameras"). With ``future_end`` the extrapolation
+    split is the validation future: frames of the train split with t_train_end < t <= future_end."""
     interpolation, extrapolation, seen, train_cameras = [], [], set(), set()
     for split in available_splits(data):
         frames = load_scene(data, split, downscale).frames
@@ -34,7 +44,8 @@ def split_frames(
             seen.add(f.image_path)
             cameras = "train_cameras" if _camera_key(f) in train_cameras else "new_cameras"
             if f.time > t_train_end + 1e-9:
-                extrapolation.append((cameras, f))
+                if future_end is None or (split == "train" and f.time <= future_end + 1e-9):
+                    extrapolation.append((cameras, f))
             elif split == "val":
                 interpolation.append((cameras, f))
     out = {"interpolation": interpolation, "extrapolation": extrapolation}
@@ -71,8 +82,10 @@ def evaluate_run(
     with_lpips: bool = True,
     save_images: bool = True,
     device: str = "auto",
+    future_end: float | None = None,
 ) -> dict:
-    """Render both splits of a trained run and score them (schema in docs/EVALUATION.md)."""
+    """Render both splits of a trained run and score them (schema in docs/EVALUATION.md); with
+    ``future_end``, the extrapolation split is the validation future (``split_frames``)."""
     run = Path(run)
     model, cfg, meta = load_run(run, device)
     data = Path(data or cfg.data)
@@ -86,7 +99,8 @@ def evaluate_run(
         from .lpips import lpips as lpips_fn
     result: dict = {}
     part_names = _part_names(data)
-    for split, frames in split_frames(data, t_end, cfg.downscale, with_cameras=True).items():
+    splits = split_frames(data, t_end, cfg.downscale, with_cameras=True, future_end=future_end)
+    for split, frames in splits.items():
         parts = PartErrors(part_names) if part_names and not half_res and cfg.downscale == 1 else None
         by_time: dict[float, list[tuple[str, Frame]]] = defaultdict(list)
         for cameras, f in frames:
@@ -139,6 +153,7 @@ def evaluate_run(
         preset=cfg.preset,
         scene=str(data),
         t_train_end=t_end,
+        **({} if future_end is None else {"future_end": future_end}),
         train_seconds=meta["train_seconds"],
         iterations=meta["step"],
         freeze_threshold=meta.get("freeze_threshold"),
