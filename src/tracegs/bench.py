@@ -151,9 +151,7 @@ def _set_aside(run: Path) -> None:
     print(f"{run}: made with other settings; moved to {previous} and retraining")
 
 
-def validation_cut(
-    data: Path, fraction: float, t_end: float | None = None, downscale: int = 1
-) -> tuple[float, float]:
+def validation_cut(data: Path, fraction: float, t_end: float | None = None) -> tuple[float, float]:
     """(t_cut, t_end) of a validation future: ``t_end`` is the training span's end (the scene's
     ``t_train_end``, else its last training time) and ``t_cut`` the last training time at or before
     ``fraction`` of it. Training stops at t_cut; the training frames after it are the future scored."""
@@ -161,9 +159,10 @@ def validation_cut(
 
     if not 0.0 < fraction < 1.0:
         raise ValueError(f"validation fraction {fraction}: must lie strictly between 0 and 1")
-    train = load_scene(data, "train", downscale)
+    train = load_scene(data, "train")  # frame times only: the image size does not matter
     times = sorted({f.time for f in train.frames})
-    t_end = t_end if t_end is not None else train.t_train_end if train.t_train_end is not None else times[-1]
+    if t_end is None:
+        t_end = train.t_train_end if train.t_train_end is not None else times[-1]
     before = [t for t in times if t <= fraction * t_end + 1e-9]
     if len(before) < 2 or not any(before[-1] < t <= t_end + 1e-9 for t in times):
         raise ValueError(
@@ -204,10 +203,7 @@ def run_variant_table(
             continue
         scene_overrides, future_end, suffix = dict(overrides or {}), None, ""
         if validation is not None:
-            downscale = apply_overrides(make_config(preset, data=data), scene_overrides).downscale
-            t_cut, future_end = validation_cut(
-                data, validation, scene_overrides.get("t_train_end"), downscale
-            )
+            t_cut, future_end = validation_cut(data, validation, scene_overrides.get("t_train_end"))
             scene_overrides["t_train_end"], suffix = t_cut, f"_val{validation:g}"
         for label, variant in variants.items():
             # rows with the same settings share one run folder (the ablation "dt=2" is the TRACE row)
@@ -232,28 +228,8 @@ def run_variant_table(
                 summary = json.loads((run / "summary.json").read_text())
             result = json.loads(done.read_text())
             i, e = result["interpolation"], result["extrapolation"]
-            if validation is not None:
-                records.append(
-                    {
-                        "scene": Path(scene).name,
-                        "variant": label,
-                        "t_cut": round(result["t_train_end"], 4),
-                        "t_end": round(result["future_end"], 4),
-                        "val_future_psnr": e["mae_psnr"],
-                        "val_future_ssim": e["ssim"],
-                        "val_future_lpips": e.get("lpips_vgg", float("nan")),
-                        "interp_psnr": i["mae_psnr"],
-                        "train_s": summary["train_seconds"],
-                        "iterations": summary["iterations"],
-                        "gaussians": summary["gaussians"],
-                        "ms_per_it": summary["ms_per_iteration"],
-                    }
-                )
-                continue
-            records.append(
-                {
-                    "scene": Path(scene).name,
-                    "variant": label,
+            if validation is None:
+                scores = {
                     "interp_psnr": i["mae_psnr"],
                     "interp_ssim": i["ssim"],
                     "interp_lpips": i.get("lpips_vgg", float("nan")),
@@ -264,6 +240,21 @@ def run_variant_table(
                     .get("new_cameras", {})
                     .get("mae_psnr", "-"),
                     "paper_extrap": PAPER.get(label, "-"),
+                }
+            else:
+                scores = {
+                    "t_cut": round(result["t_train_end"], 4),
+                    "t_end": round(result["future_end"], 4),
+                    "val_future_psnr": e["mae_psnr"],
+                    "val_future_ssim": e["ssim"],
+                    "val_future_lpips": e.get("lpips_vgg", float("nan")),
+                    "interp_psnr": i["mae_psnr"],
+                }
+            records.append(
+                {
+                    "scene": Path(scene).name,
+                    "variant": label,
+                    **scores,
                     "train_s": summary["train_seconds"],
                     "iterations": summary["iterations"],
                     "gaussians": summary["gaussians"],
