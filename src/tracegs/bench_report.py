@@ -76,18 +76,28 @@ def update_section(name: str, body: str, path: str | Path | None = None) -> Path
     return path
 
 
+def _measurements(record: dict) -> dict:
+    """A record without its provenance (the command, machine and note that describe the run)."""
+    return {k: v for k, v in record.items() if k not in ("command", "machine", "note")}
+
+
 def merge_records(
     name: str, records: list[dict], keys: tuple[str, ...], folder: str | Path | None = None
 ) -> list[dict]:
     """Store ``records`` in ``folder/NAME.json`` (default ``docs/results``): a record replaces the stored
     one with the same ``keys`` values in its place (so a rerun row stays where it was), the others are
-    kept, new keys go last; returns every stored record."""
+    kept, new keys go last; returns every stored record. A record whose measurements equal the stored
+    one's (a table re-made from the same finished run) keeps the stored command, machine and note."""
     path = Path(folder if folder is not None else RESULTS_DIR) / f"{name}.json"
     stored = json.loads(path.read_text()) if path.is_file() else []
     if not isinstance(stored, list):
         raise ValueError(f"{path}: expected a JSON list of benchmark records")
     fresh = {tuple(r[k] for k in keys): r for r in records}
-    merged = [fresh.pop(tuple(r.get(k) for k in keys), r) for r in stored] + list(fresh.values())
+    merged = []
+    for old in stored:
+        new = fresh.pop(tuple(old.get(k) for k in keys), old)
+        merged.append(old if _measurements(new) == _measurements(old) else new)
+    merged += list(fresh.values())
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(merged, indent=1) + "\n")

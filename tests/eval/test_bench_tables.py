@@ -43,6 +43,17 @@ def test_merge_records_keeps_other_rows_and_replaces_same_key(tmp_path):
     assert [(r["scene"], r["psnr"]) for r in table] == [("a", 3.0), ("b", 2.0)]  # replaced in its place
 
 
+def test_merge_records_keeps_the_note_of_a_row_remade_from_the_same_run(tmp_path):
+    from tracegs.bench_report import merge_records
+
+    row = {"scene": "a", "variant": "TRACE", "psnr": 1.0, "command": "first"}
+    merge_records("t", [row | {"note": "inflated"}], ("scene", "variant"), tmp_path)
+    table = merge_records("t", [row | {"command": "again"}], ("scene", "variant"), tmp_path)
+    assert [(r["command"], r.get("note")) for r in table] == [("first", "inflated")]
+    table = merge_records("t", [row | {"psnr": 2.0, "command": "rerun"}], ("scene", "variant"), tmp_path)
+    assert [(r["command"], r.get("note"), r["psnr"]) for r in table] == [("rerun", None, 2.0)]
+
+
 def test_validation_table_trains_to_the_cut_and_scores_the_rest_of_the_training_span(tmp_path):
     scene = write_tiny_scene(tmp_path / "scene", n_cams=3, n_times=5, size=32)  # times 0, 0.25 ... 1
     assert validation_cut(scene, 0.8) == (0.5, 0.75)  # the last time at or before 0.6
