@@ -80,9 +80,9 @@ def test_build_failure_falls_back_to_reference_with_one_warning(monkeypatch):
     def broken(openmp):
         raise RuntimeError("simulated compiler failure")
 
-    monkeypatch.setattr(native, "_EXT", None)
-    monkeypatch.setattr(native, "_EXT_ERROR", None)
-    monkeypatch.setattr(native, "_build", broken)
+    monkeypatch.setattr(native.EXTENSION, "module", None)
+    monkeypatch.setattr(native.EXTENSION, "error", None)
+    monkeypatch.setattr(native.EXTENSION, "build", broken)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         assert resolve_backend("auto", torch.device("cpu")) == "reference"

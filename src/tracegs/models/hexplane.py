@@ -6,18 +6,36 @@ is sampled bilinearly, the six features are multiplied together (K-Planes' produ
 at 1, so a new grid is static), and the products of all scales are concatenated [N, S C].
 The decoder and the zero-initialised heads live in ``models/deformation.py`` (as in 4DGS, where the
 grid and the deformation network are separate modules).
+
+On the CPU the sampling, its backward and the planes' total variation run in a small C++/OpenMP
+extension (``csrc/hexplane_cpu.cpp``, built on first use like the rasteriser) over channels-last
+planes: torch's ``grid_sample`` backward is single-threaded on the CPU and made TRACE_4dgs's step
+twice TRACE's. Elsewhere (CUDA), or if the extension cannot be built, ``grid_sample`` computes the
+same function.
 """
 
 from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..cpp import NativeExtension
+
 PLANES = tuple(itertools.combinations(range(4), 2))  # (0,1) xy (0,2) xz (0,3) xt (1,2) yz (1,3) yt (2,3) zt
+# plane (i, j) is read with coordinate i along its width and j along its height (grid_sample's order)
+_AXES = [axis for pair in PLANES for axis in pair]
+
+EXTENSION = NativeExtension(
+    "tracegs_hexplane_cpu",
+    Path(__file__).resolve().parent / "csrc" / "hexplane_cpu.cpp",
+    what="native HexPlane kernels",
+    fallback="torch's grid_sample",
+)
 
 
 @dataclass
@@ -65,8 +83,82 @@ def sample_plane(plane: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
     return F.grid_sample(plane, grid, mode="bilinear", padding_mode="border", align_corners=True)[0, :, 0].T
 
 
-def plane_tv(plane: torch.Tensor) -> torch.Tensor:
-    """Total variation (mean squared first differences along H and W) of ``plane`` [1, C, H, W]."""
+def _table(plane: torch.Tensor) -> torch.Tensor:
+    """A plane [1, C, H, W] as the kernels' table [H, W, C] (a view of a channels-last plane)."""
+    return plane[0].permute(1, 2, 0).contiguous()
+
+
+def _untable(table_grad: torch.Tensor) -> torch.Tensor:
+    return table_grad.permute(2, 0, 1)[None]
+
+
+class _ProductSample(torch.autograd.Function):
+    """The product of the bilinear samples of planes at ``coords`` [N, 4] (native kernels)."""
+
+    @staticmethod
+    def forward(ctx, coords, *planes):
+        tables = [_table(plane) for plane in planes]
+        out, samples = EXTENSION.module.hexplane_forward(tables, coords, _AXES, torch.get_num_threads())
+        ctx.save_for_backward(coords, samples, *tables)
+        return out
+
+    @staticmethod
+    def backward(ctx, grad_out):
+        coords, samples, *tables = ctx.saved_tensors
+        wants_coords = ctx.needs_input_grad[0]
+        grads = EXTENSION.module.hexplane_backward(
+            tables,
+            coords,
+            _AXES,
+            samples,
+            grad_out.float().contiguous(),
+            wants_coords,
+            torch.get_num_threads(),
+        )
+        coords_grad = grads.pop() if wants_coords else None
+        return coords_grad, *(_untable(g) for g in grads)
+
+
+class _PlaneTV(torch.autograd.Function):
+    """``scale * plane_tv`` with its gradient computed in the same pass (native kernel)."""
+
+    @staticmethod
+    def forward(ctx, plane, scale):
+        loss, grad = EXTENSION.module.plane_tv(_table(plane), scale, torch.get_num_threads())
+        ctx.save_for_backward(grad)
+        return loss
+
+    @staticmethod
+    def backward(ctx, grad_loss):
+        (grad,) = ctx.saved_tensors
+        # a weighted term of a summed loss gets 1: spare a pass over the plane
+        return _untable(grad if float(grad_loss) == 1.0 else grad * grad_loss), None
+
+
+def _native(plane: torch.Tensor) -> bool:
+    """Whether the native kernels serve this plane (float32 on the CPU, extension built)."""
+    return plane.device.type == "cpu" and plane.dtype == torch.float32 and EXTENSION.load() is not None
+
+
+def product_of_samples(planes, coords: torch.Tensor) -> torch.Tensor:
+    """prod_k bilinear(planes[k], coords[:, PLANES[k]]): [N, C] features of one scale's six planes."""
+    if _native(planes[0]):
+        return _ProductSample.apply(coords.float().contiguous(), *planes)
+    product = 1.0
+    for (i, j), plane in zip(PLANES, planes, strict=True):
+        product = product * sample_plane(plane, coords[:, [i, j]])
+    return product
+
+
+def plane_tv(plane: torch.Tensor, scale: float = 1.0) -> torch.Tensor:
+    """``scale`` x total variation (mean squared first differences along H and W) of ``plane`` [1, C, H, W]."""
+    if _native(plane):
+        return _PlaneTV.apply(plane, float(scale))
+    return scale * plane_tv_reference(plane)
+
+
+def plane_tv_reference(plane: torch.Tensor) -> torch.Tensor:
+    """``plane_tv`` in PyTorch operations (the definition; CUDA and the fallback)."""
     dh = (plane[..., 1:, :] - plane[..., :-1, :]).square().mean()
     dw = (plane[..., :, 1:] - plane[..., :, :-1]).square().mean()
     return 2 * (dh + dw)
@@ -97,7 +189,8 @@ class HexPlane(nn.Module):
                     nn.init.ones_(plane)
                 else:
                     nn.init.uniform_(plane, *cfg.init_range)
-                planes.append(nn.Parameter(plane))
+                # channels last: a cell's C features are contiguous for the native kernels
+                planes.append(nn.Parameter(plane.contiguous(memory_format=torch.channels_last)))
             self.scales.append(planes)
 
     @property
@@ -127,17 +220,12 @@ class HexPlane(nn.Module):
         lo, hi = self.time_range[0], self.time_range[1]
         t = ((t - lo) * (2 / (hi - lo)) - 1).clamp(-1, 1)
         u = torch.cat([normalize_aabb(x, self.aabb.to(x.dtype)), t.to(x.dtype)], dim=-1)  # [N, 4]
-        features = []
-        for planes in self.scales:
-            product = 1.0
-            for (i, j), plane in zip(PLANES, planes, strict=True):
-                product = product * sample_plane(plane, u[:, [i, j]])
-            features.append(product)
-        return torch.cat(features, dim=-1)
+        return torch.cat([product_of_samples(list(planes), u) for planes in self.scales], dim=-1)
 
-    def tv_loss(self) -> torch.Tensor:
-        """Total variation of every plane (4DGS's ``plane_tv``), averaged over the scales."""
-        return sum(plane_tv(p) for planes in self.scales for p in planes) / len(self.scales)
+    def tv_loss(self, weight: float = 1.0) -> torch.Tensor:
+        """``weight`` x total variation of every plane (4DGS's ``plane_tv``), averaged over the scales."""
+        scale = weight / len(self.scales)
+        return sum(plane_tv(p, scale) for planes in self.scales for p in planes)
 
     def time_planes(self) -> list[nn.Parameter]:
         """The xt, yt, zt planes of every scale."""
@@ -156,7 +244,7 @@ class HexPlane(nn.Module):
     def regularization_losses(self) -> dict[str, torch.Tensor]:
         """Named, weighted regularisers for the trainer to sum and log."""
         return {
-            "plane_tv": self.cfg.plane_tv_weight * self.tv_loss(),
+            "plane_tv": self.tv_loss(self.cfg.plane_tv_weight),
             "time_smoothness": self.cfg.time_smoothness_weight * self.time_smoothness_loss(),
             "time_l1": self.cfg.time_l1_weight * self.time_l1_loss(),
         }

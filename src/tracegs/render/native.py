@@ -1,10 +1,8 @@
 """Native CPU backend: C++/OpenMP projection and tile rasteriser with explicit backward kernels.
 
-The extension (``csrc/raster_cpu.cpp``) is JIT-compiled with ``torch.utils.cpp_extension.load`` on
-first use and cached in torch's extensions folder (``TORCH_EXTENSIONS_DIR``, default
-``~/.cache/torch_extensions``). It needs a C++17 compiler; OpenMP (g++ ``-fopenmp``, clang with
-libomp) makes it multi-threaded. If it cannot be built, :func:`load_extension` returns ``None`` and
-warns once, and ``rasterize(backend="auto")`` falls back to the reference.
+The extension (``csrc/raster_cpu.cpp``) is JIT-compiled on first use (``tracegs.cpp``). If it cannot
+be built, :func:`load_extension` returns ``None`` and warns once, and ``rasterize(backend="auto")``
+falls back to the reference.
 
 Two autograd functions mirror gsplat's split: projection (``means, quats, scales -> means2d, conics,
 depths``) and blending (``means2d, conics, colors, opacities, depths -> images``). The split keeps
@@ -14,105 +12,25 @@ densification reads. Everything runs in float32; the thread count is ``torch.get
 
 from __future__ import annotations
 
-import hashlib
-import os
-import platform
-import shutil
-import subprocess
-import warnings
 from pathlib import Path
 
 import torch
 from torch import Tensor
 
+from ..cpp import NativeExtension
 from .reference import Projection
 
-_SOURCE = Path(__file__).resolve().parent / "csrc" / "raster_cpu.cpp"
-_EXT = None
-_EXT_ERROR: str | None = None
-
-
-def _compiler() -> str:
-    return os.environ.get("CXX", "c++")
-
-
-def _supports_flag(flag: str) -> bool:
-    """Whether the C++ compiler accepts ``flag`` (e.g. -march=native is missing on some toolchains)."""
-    try:
-        res = subprocess.run(
-            [_compiler(), flag, "-x", "c++", "-E", "-o", os.devnull, "-"],
-            input=b"",
-            capture_output=True,
-            timeout=60,
-        )
-        return res.returncode == 0
-    except (OSError, subprocess.SubprocessError):
-        return False
-
-
-def _cpu_tag() -> str:
-    """Short hash of the CPU model and instruction-set flags."""
-    info = platform.machine() + platform.processor()
-    try:
-        lines = Path("/proc/cpuinfo").read_text().splitlines()
-        info += "".join(line for line in lines if line.startswith(("model name", "flags")))[:4096]
-    except OSError:
-        pass
-    return hashlib.sha1(info.encode()).hexdigest()[:8]
-
-
-def _build(openmp: bool):
-    from torch.utils.cpp_extension import load
-
-    cflags = ["-O3", "-ffp-contract=off"]
-    # Same float results in the forward and backward loops (which decide alpha thresholds
-    # independently) need identical rounding: no FMA contraction, no fast-math.
-    if _supports_flag("-march=native"):
-        cflags.append("-march=native")
-    ldflags = []
-    if openmp:
-        cflags.append("-fopenmp")
-        ldflags.append("-fopenmp")
-    # -march=native binaries are CPU specific: key the cache by CPU so that a home directory shared
-    # between different machines never loads one built for another (SIGILL, no fallback possible).
-    name = f"tracegs_raster_cpu_{_cpu_tag()}" + ("" if openmp else "_serial")
-    return load(name=name, sources=[str(_SOURCE)], extra_cflags=cflags, extra_ldflags=ldflags, verbose=False)
+EXTENSION = NativeExtension(
+    "tracegs_raster_cpu",
+    Path(__file__).resolve().parent / "csrc" / "raster_cpu.cpp",
+    what="native CPU rasteriser",
+    fallback="the (much slower) pure-PyTorch reference backend",
+)
 
 
 def load_extension():
     """Build (first call) or load the C++ extension; ``None`` (with one warning) if that fails."""
-    global _EXT, _EXT_ERROR
-    if _EXT is not None or _EXT_ERROR is not None:
-        return _EXT
-    if shutil.which(_compiler()) is None:
-        _EXT_ERROR = f"no C++ compiler found ({_compiler()!r} is not on PATH; set CXX)"
-    else:
-        try:
-            _EXT = _build(openmp=True)
-        except Exception as err_omp:  # noqa: BLE001 - any build failure means "fall back"
-            try:
-                _EXT = _build(openmp=False)
-                warnings.warn(
-                    "tracegs.render: built the native CPU rasteriser without OpenMP (single-threaded); "
-                    f"the OpenMP build failed: {_first_line(err_omp)}",
-                    RuntimeWarning,
-                    stacklevel=3,
-                )
-            except Exception as err:  # noqa: BLE001
-                _EXT_ERROR = f"building the C++ extension failed: {_first_line(err)}"
-    if _EXT_ERROR is not None:
-        warnings.warn(
-            f"tracegs.render: native CPU rasteriser unavailable, {_EXT_ERROR}; "
-            "falling back to the (much slower) pure-PyTorch reference backend.",
-            RuntimeWarning,
-            stacklevel=3,
-        )
-    return _EXT
-
-
-def _first_line(err: BaseException) -> str:
-    text = str(err).strip().splitlines()
-    return text[-1] if text else type(err).__name__
+    return EXTENSION.load()
 
 
 def is_available() -> bool:

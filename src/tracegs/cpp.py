@@ -1,0 +1,109 @@
+"""C++/OpenMP extensions built on first use (the CPU rasteriser, the HexPlane grid's kernels).
+
+Each extension is one ``.cpp`` file, JIT-compiled with ``torch.utils.cpp_extension.load`` and
+cached in torch's extensions folder (``TORCH_EXTENSIONS_DIR``, default ``~/.cache/torch_extensions``).
+It needs a C++17 compiler; OpenMP (g++ ``-fopenmp``, clang with libomp) makes it multi-threaded.
+If it cannot be built, :meth:`NativeExtension.load` returns ``None`` and warns once, and the caller
+falls back to its pure-PyTorch path.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import platform
+import shutil
+import subprocess
+import warnings
+from pathlib import Path
+
+
+def compiler() -> str:
+    return os.environ.get("CXX", "c++")
+
+
+def supports_flag(flag: str) -> bool:
+    """Whether the C++ compiler accepts ``flag`` (e.g. -march=native is missing on some toolchains)."""
+    try:
+        res = subprocess.run(
+            [compiler(), flag, "-x", "c++", "-E", "-o", os.devnull, "-"],
+            input=b"",
+            capture_output=True,
+            timeout=60,
+        )
+        return res.returncode == 0
+    except (OSError, subprocess.SubprocessError):
+        return False
+
+
+def cpu_tag() -> str:
+    """Short hash of the CPU model and instruction-set flags."""
+    info = platform.machine() + platform.processor()
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+        info += "".join(line for line in lines if line.startswith(("model name", "flags")))[:4096]
+    except OSError:
+        pass
+    return hashlib.sha1(info.encode()).hexdigest()[:8]
+
+
+def _first_line(err: BaseException) -> str:
+    text = str(err).strip().splitlines()
+    return text[-1] if text else type(err).__name__
+
+
+class NativeExtension:
+    """One JIT-built C++ extension: ``load()`` builds it once, then returns the module (or ``None``).
+
+    ``what`` names it in warnings ("native CPU rasteriser"), ``fallback`` says what runs instead.
+    """
+
+    def __init__(self, name: str, source: Path, what: str, fallback: str):
+        self.name, self.source, self.what, self.fallback = name, Path(source), what, fallback
+        self.module = None
+        self.error: str | None = None
+
+    def build(self, openmp: bool):
+        from torch.utils.cpp_extension import load
+
+        cflags = ["-O3", "-ffp-contract=off"]
+        # Same float results in forward and backward loops (the rasteriser decides alpha thresholds in
+        # both independently) need identical rounding: no FMA contraction, no fast-math.
+        if supports_flag("-march=native"):
+            cflags.append("-march=native")
+        ldflags = []
+        if openmp:
+            cflags.append("-fopenmp")
+            ldflags.append("-fopenmp")
+        # -march=native binaries are CPU specific: key the cache by CPU so that a home directory shared
+        # between different machines never loads one built for another (SIGILL, no fallback possible).
+        name = f"{self.name}_{cpu_tag()}" + ("" if openmp else "_serial")
+        return load(name=name, sources=[str(self.source)], extra_cflags=cflags, extra_ldflags=ldflags)
+
+    def load(self):
+        """Build (first call) or return the module; ``None`` (with one warning) if that fails."""
+        if self.module is not None or self.error is not None:
+            return self.module
+        if shutil.which(compiler()) is None:
+            self.error = f"no C++ compiler found ({compiler()!r} is not on PATH; set CXX)"
+        else:
+            try:
+                self.module = self.build(openmp=True)
+            except Exception as err_omp:  # noqa: BLE001 - any build failure means "fall back"
+                try:
+                    self.module = self.build(openmp=False)
+                    warnings.warn(
+                        f"tracegs: built the {self.what} without OpenMP (single-threaded); "
+                        f"the OpenMP build failed: {_first_line(err_omp)}",
+                        RuntimeWarning,
+                        stacklevel=3,
+                    )
+                except Exception as err:  # noqa: BLE001
+                    self.error = f"building the C++ extension failed: {_first_line(err)}"
+        if self.error is not None:
+            warnings.warn(
+                f"tracegs: {self.what} unavailable, {self.error}; falling back to {self.fallback}.",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+        return self.module
