@@ -274,7 +274,14 @@ def run_variant_table(
 
 def variant_table_markdown(name: str, preset: str, resolution: int, records: list[dict]) -> str:
     """The quality table and the per-iteration timing table of ``records`` (each with its command and
-    machine), as a section of docs/BENCHMARKS.md."""
+    machine), as a section of docs/BENCHMARKS.md. Rows are shown scene by scene (in the order the
+    scenes were first measured), each scene's rows in the order of METHODS and ABLATIONS, so a row
+    added later still sits beside the rows it is compared with."""
+    scene_rank = {s: i for i, s in enumerate(dict.fromkeys(r["scene"] for r in records))}
+    variant_rank = {v: i for i, v in enumerate({**METHODS, **ABLATIONS})}
+    records = sorted(
+        records, key=lambda r: (scene_rank[r["scene"]], variant_rank.get(r["variant"], len(variant_rank)))
+    )
     hidden = ("ms_per_it", "command", "machine", "note")
     cols = [c for c in dict.fromkeys(k for r in records for k in r) if c not in hidden]
     timing_rows = [{"scene": r["scene"], "variant": r["variant"], **r["ms_per_it"]} for r in records]

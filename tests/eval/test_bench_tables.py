@@ -78,3 +78,30 @@ def test_validation_table_trains_to_the_cut_and_scores_the_rest_of_the_training_
     assert result["future_end"] == 0.75 and result["extrapolation"]["frames"] == 2  # 2 training cameras
     assert rows[0]["val_future_psnr"] == result["extrapolation"]["mae_psnr"]
     assert not (out / "runs" / "scene_TRACE_tiny").exists()  # the test-protocol run is a separate folder
+
+
+def test_tables_show_rows_scene_by_scene_in_the_variant_order():
+    from tracegs.bench import variant_table_markdown
+
+    def row(scene, variant):
+        return {"scene": scene, "variant": variant, "psnr": 1.0, "ms_per_it": {"fields": 1.0}}
+
+    stamp = {"command": "c", "machine": "m"}
+    records = [
+        row("b", "DefGS"),
+        row("a", "TRACE"),
+        row("b", "TRACE"),
+        row("a", "mine"),
+        row("b", "TRACE_4dgs"),
+    ]
+    text = variant_table_markdown("methods", "tiny", 32, [r | stamp for r in records])
+    quality = [
+        line.split(" | ")[:2] for line in text.split("Time per")[0].splitlines() if line.startswith("| ")
+    ]
+    assert quality[1:] == [
+        ["| b", "TRACE"],
+        ["| b", "TRACE_4dgs"],
+        ["| b", "DefGS"],
+        ["| a", "TRACE"],
+        ["| a", "mine"],
+    ]
