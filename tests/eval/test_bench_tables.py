@@ -84,9 +84,15 @@ def test_tables_show_rows_scene_by_scene_in_the_variant_order():
     from tracegs.bench import variant_table_markdown
 
     def row(scene, variant):
-        return {"scene": scene, "variant": variant, "psnr": 1.0, "ms_per_it": {"fields": 1.0}}
+        return {
+            "scene": scene,
+            "variant": variant,
+            "psnr": 1.0,
+            "ms_per_it": {"fields": 1.0},
+            "command": "c",
+            "machine": "m",
+        }
 
-    stamp = {"command": "c", "machine": "m"}
     records = [
         row("b", "DefGS"),
         row("a", "TRACE"),
@@ -94,7 +100,7 @@ def test_tables_show_rows_scene_by_scene_in_the_variant_order():
         row("a", "mine"),
         row("b", "TRACE_4dgs"),
     ]
-    text = variant_table_markdown("methods", "tiny", 32, [r | stamp for r in records])
+    text = variant_table_markdown("methods", "tiny", 32, records)
     quality = [
         line.split(" | ")[:2] for line in text.split("Time per")[0].splitlines() if line.startswith("| ")
     ]
