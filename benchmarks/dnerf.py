@@ -65,6 +65,7 @@ def main() -> None:
         overrides,
         command=command,
         validation=args.validation,
+        methods_table="dnerf",
     )
     future = "val_future_psnr" if args.validation is not None else "extrap_psnr"
     for r in rows:

@@ -14,7 +14,14 @@ from pathlib import Path
 
 import torch
 
-from .bench_report import cpu_name, machine_description, markdown_table, merge_records, update_section
+from .bench_report import (
+    cpu_name,
+    load_records,
+    machine_description,
+    markdown_table,
+    merge_records,
+    update_section,
+)
 from .config import make_config
 
 
@@ -183,6 +190,7 @@ def run_variant_table(
     train: bool = True,
     command: str | None = None,
     validation: float | None = None,
+    methods_table: str = "methods",
 ) -> list[dict]:
     """Train and evaluate every variant (config overrides) on every scene; one table row each.
 
@@ -191,6 +199,8 @@ def run_variant_table(
     (default: the ``tracegs bench`` line that makes them). With ``validation`` (a fraction of the
     training span) every run trains up to that cut and is scored on the training cameras' later
     frames (``validation_cut``): the table for choosing settings, which never sees the test splits.
+    A row with TRACE's settings in another table (the ablation "dt=2") is stored as the TRACE record
+    of ``methods_table`` and shown from there, so one run is never recorded twice.
     """
     from .config import apply_overrides, config_to_dict
     from .eval.protocol import evaluate_run
@@ -207,8 +217,7 @@ def run_variant_table(
             scene_overrides["t_train_end"], suffix = t_cut, f"_val{validation:g}"
         for label, variant in variants.items():
             # rows with the same settings share one run folder (the ablation "dt=2" is the TRACE row)
-            same_as_trace = not variant or variant == METHODS["TRACE"]
-            slug = "TRACE" if same_as_trace else label.replace(" ", "_").replace("=", "")
+            slug = "TRACE" if _same_as_trace(variant) else label.replace(" ", "_").replace("=", "")
             run = Path(out) / "runs" / f"{Path(scene).name}_{slug}_{preset}{suffix}"
             cfg = apply_overrides(make_config(preset, data=data, run=run), {**scene_overrides, **variant})
             done = run / "eval.json"
@@ -265,11 +274,54 @@ def run_variant_table(
         flags = _flags(overrides) + ("" if validation is None else f" --validation {validation:g}")
         command = command or f"tracegs bench {name} --scenes {' '.join(scenes)} --preset {preset}{flags}"
         stamp = {"command": command, "machine": machine_description()}
-        section = f"{name}-{preset}{flags.replace(' ', '')}"
-        table = merge_records(section, [r | stamp for r in records], ("scene", "variant"))
+        suffix = f"-{preset}{flags.replace(' ', '')}"
+        stored = [r | stamp for r in records]
+        # A row with TRACE's settings (the ablation "dt=2") is the methods table's TRACE run: it is
+        # stored once, as that table's TRACE record, and shown here from there. Validation tables have
+        # no methods counterpart and keep their own rows.
+        shares = validation is None and name != methods_table
+        shared = {label for label, v in variants.items() if shares and _same_as_trace(v)}
+        if shared:
+            as_trace = [
+                r | {"variant": "TRACE", "paper_extrap": PAPER["TRACE"]}
+                for r in stored
+                if r["variant"] in shared
+            ]
+            if as_trace:
+                table = merge_records(methods_table + suffix, as_trace, ("scene", "variant"))
+                update_section(
+                    methods_table + suffix, variant_table_markdown(methods_table, preset, resolution, table)
+                )
+            stored = [r for r in stored if r["variant"] not in shared]
+        table = merge_records(name + suffix, stored, ("scene", "variant"))
+        if shares:
+            scenes_shown = {r["scene"] for r in table + records}
+            table = table + _trace_rows(methods_table + suffix, scenes_shown, methods_table)
         title = name if validation is None else f"{name}, validation future"
-        update_section(section, variant_table_markdown(title, preset, resolution, table))
+        update_section(name + suffix, variant_table_markdown(title, preset, resolution, table))
     return records
+
+
+def _same_as_trace(variant: dict) -> bool:
+    return not variant or variant == METHODS["TRACE"]
+
+
+def _trace_rows(section: str, scenes: set[str], methods_table: str) -> list[dict]:
+    """The TRACE records of the methods table ``section`` for ``scenes``, labelled as the ablation
+    with TRACE's settings: that ablation's rows, shown in its table but stored once."""
+    label = next(k for k, v in ABLATIONS.items() if _same_as_trace(v))
+    rows = load_records(section)
+    shown = f"the {methods_table} table's TRACE row, the same run"
+    return [
+        r
+        | {
+            "variant": label,
+            "paper_extrap": PAPER[label],
+            "note": "; ".join(filter(None, [shown, r.get("note")])),
+        }
+        for r in rows
+        if r.get("variant") == "TRACE" and r.get("scene") in scenes
+    ]
 
 
 def variant_table_markdown(name: str, preset: str, resolution: int, records: list[dict]) -> str:

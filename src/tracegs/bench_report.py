@@ -81,6 +81,15 @@ def _measurements(record: dict) -> dict:
     return {k: v for k, v in record.items() if k not in ("command", "machine", "note")}
 
 
+def load_records(name: str, folder: str | Path | None = None) -> list[dict]:
+    """The records stored in ``folder/NAME.json`` (default ``docs/results``); [] if there are none."""
+    path = Path(folder if folder is not None else RESULTS_DIR) / f"{name}.json"
+    stored = json.loads(path.read_text()) if path.is_file() else []
+    if not isinstance(stored, list):
+        raise ValueError(f"{path}: expected a JSON list of benchmark records")
+    return stored
+
+
 def merge_records(
     name: str, records: list[dict], keys: tuple[str, ...], folder: str | Path | None = None
 ) -> list[dict]:
@@ -89,9 +98,7 @@ def merge_records(
     kept, new keys go last; returns every stored record. A record whose measurements equal the stored
     one's (a table re-made from the same finished run) keeps the stored command, machine and note."""
     path = Path(folder if folder is not None else RESULTS_DIR) / f"{name}.json"
-    stored = json.loads(path.read_text()) if path.is_file() else []
-    if not isinstance(stored, list):
-        raise ValueError(f"{path}: expected a JSON list of benchmark records")
+    stored = load_records(name, folder)
     fresh = {tuple(r[k] for k in keys): r for r in records}
     merged = []
     for old in stored:

@@ -9,7 +9,11 @@ from tests.conftest import write_tiny_scene
 from tracegs.bench import ABLATIONS, METHODS, run_variant_table, validation_cut
 
 
-def test_rows_reuse_and_share_runs(tmp_path):
+def test_rows_reuse_and_share_runs(tmp_path, monkeypatch):
+    from tracegs import bench_report
+
+    monkeypatch.setattr(bench_report, "RESULTS_DIR", tmp_path / "results")
+    monkeypatch.setattr(bench_report, "DEFAULT_PATH", tmp_path / "BENCHMARKS.md")
     out = tmp_path / "bench"
     scenes = (str(write_tiny_scene(tmp_path / "scene", size=32)),)  # LPIPS needs >= 31 px
     rows = run_variant_table(
@@ -24,12 +28,17 @@ def test_rows_reuse_and_share_runs(tmp_path):
     checkpoint = out / "runs" / "scene_TRACE_tiny" / "checkpoint.pt"
     stamp = checkpoint.stat().st_mtime_ns
 
-    # the ablation row with the default settings is the TRACE run: reported, not retrained
-    again = run_variant_table(
-        "ablations", {"dt=2": ABLATIONS["dt=2"]}, out, scenes, "tiny", update_docs=False, train=False
-    )
+    # the ablation row with the default settings is the TRACE run: reported, not retrained, and
+    # stored once, as the methods table's TRACE record, which the ablation table shows as its row
+    again = run_variant_table("ablations", {"dt=2": ABLATIONS["dt=2"]}, out, scenes, "tiny", train=False)
     assert [r["extrap_psnr"] for r in again] == [rows[0]["extrap_psnr"]]
     assert checkpoint.stat().st_mtime_ns == stamp
+    assert bench_report.load_records("ablations-tiny") == []
+    (stored,) = bench_report.load_records("methods-tiny")
+    assert (stored["variant"], stored["extrap_psnr"]) == ("TRACE", rows[0]["extrap_psnr"])
+    section = (tmp_path / "BENCHMARKS.md").read_text().split("<!-- ablations-tiny:start -->")[1]
+    assert f"| scene | dt=2 | {rows[0]['interp_psnr']:.3f} |" in section
+    assert "the methods table's TRACE row" in section
 
 
 def test_merge_records_keeps_other_rows_and_replaces_same_key(tmp_path):
