@@ -280,20 +280,18 @@ def run_variant_table(
         # stored once, as that table's TRACE record, and shown here from there. Validation tables have
         # no methods counterpart and keep their own rows.
         shares = validation is None and name != methods_table
-        shared = {label for label, v in variants.items() if shares and _same_as_trace(v)}
-        if shared:
-            as_trace = [
-                r | {"variant": "TRACE", "paper_extrap": PAPER["TRACE"]}
-                for r in stored
-                if r["variant"] in shared
-            ]
-            if as_trace:
-                table = merge_records(methods_table + suffix, as_trace, ("scene", "variant"))
-                update_section(
-                    methods_table + suffix, variant_table_markdown(methods_table, preset, resolution, table)
-                )
-            stored = [r for r in stored if r["variant"] not in shared]
-        table = merge_records(name + suffix, stored, ("scene", "variant"))
+        shared = {label for label, v in variants.items() if _same_as_trace(v)} if shares else set()
+        as_trace = [
+            r | {"variant": "TRACE", "paper_extrap": PAPER["TRACE"]} for r in stored if r["variant"] in shared
+        ]
+        if as_trace:
+            table = merge_records(methods_table + suffix, as_trace, ("scene", "variant"))
+            update_section(
+                methods_table + suffix, variant_table_markdown(methods_table, preset, resolution, table)
+            )
+        table = merge_records(
+            name + suffix, [r for r in stored if r["variant"] not in shared], ("scene", "variant")
+        )
         if shares:
             scenes_shown = {r["scene"] for r in table + records}
             table = table + _trace_rows(methods_table + suffix, scenes_shown, methods_table)
