@@ -220,6 +220,16 @@ def test_non_equivalent_variant_equals_converted_parameters():
     center, center_velocity, w = raw[:, 0:3], raw[:, 3:6], raw[:, 6:9]
     a_c, eps = raw[:, 9:12] * raw[:, 9:12].abs() / 10, raw[:, 12:15] * raw[:, 12:15].abs() / 10
     expected = equivalent_from_center(center, center_velocity, a_c, w, eps)
+    named = field.outputs(x, 0.2)  # the explicit centre and its motion, before the conversion
+    assert list(named) == [
+        "center",
+        "center_velocity",
+        "angular_velocity",
+        "acceleration",
+        "angular_acceleration",
+    ]
+    for got, want in zip(named.values(), (center, center_velocity, w, a_c, eps), strict=True):
+        torch.testing.assert_close(got, want)
     for got, want in zip(params, expected, strict=True):
         torch.testing.assert_close(got, want)
     # and the particle velocity is the composite one, w x (x - P_c) + v_c (Eq. 3)

@@ -139,8 +139,10 @@ class DynamicsField(nn.Module):
             (positional_encoding(time, self.cfg.time_frequencies), slice(ex, None)),
         ]
 
-    def forward(self, x: torch.Tensor, t: float | torch.Tensor) -> DynamicsParams:
-        """Dynamics parameters of particles at positions ``x`` [N, 3] at time ``t`` (float or [N, 1]).
+    def outputs(self, x: torch.Tensor, t: float | torch.Tensor) -> dict[str, torch.Tensor]:
+        """The head's named outputs [N, 3] (``cfg.output_slices``; accelerations and jerks scaled), in
+        the dtype of ``x``: for the non-equivalent variant the explicit centre P_c and its velocity,
+        before ``forward`` converts them (Eq. 5).
 
         The MLP on ``encode(x, t)``, its first layer evaluated part by part (``linear_of_parts``: a
         time shared by all points enters as a bias)."""
@@ -155,6 +157,11 @@ class DynamicsField(nn.Module):
         for name in ("acceleration", "angular_acceleration", "jerk", "angular_jerk"):
             if name in out:
                 out[name] = scale_acceleration(out[name], self.cfg.acceleration_scale)
+        return out
+
+    def forward(self, x: torch.Tensor, t: float | torch.Tensor) -> DynamicsParams:
+        """Dynamics parameters of particles at positions ``x`` [N, 3] at time ``t`` (float or [N, 1])."""
+        out = self.outputs(x, t)
         zero = torch.zeros_like(x)
         acceleration = out.get("acceleration", zero)
         angular_acceleration = out.get("angular_acceleration", zero)
