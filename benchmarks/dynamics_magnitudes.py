@@ -3,8 +3,8 @@
 Prints, at a few training times and at the handover t0, the median over all Gaussians of |x| and of
 the norm of each of f_trd's named outputs (``DynamicsField.outputs``: v_bar, w, a_bar, eps; for the
 "no equivalence" variant the explicit centre P_c, its velocity v_c and acceleration a_c, |x - P_c|
-and the v_bar, a_bar they convert to), then the median displacement the physics predicts from t0 to ``--future`` beside the one
-f_defo reconstructed over the same span before t0. A learned motion far larger than the
+and the v_bar, a_bar they convert to), then the median displacement the physics predicts from t0 to
+``--future`` beside the one f_defo reconstructed over the same span before t0. A learned motion far larger than the
 reconstructed one is what an extrapolation that flies apart looks like (docs/PHYSICS.md, "Why the
 explicit centre fails on standup").
 Usage: .venv/bin/python benchmarks/dynamics_magnitudes.py RUN [RUN ...] [--future 1.0]
@@ -33,17 +33,17 @@ def report(run: Path, future: float) -> None:
     for t in (0.25 * t0, 0.5 * t0, t0):
         means = model.deform(t)["means"]
         with model.autocast():
-            named = model.dynamics.outputs(means, t)
-        sizes = {name: _median_norm(v.float()) for name, v in named.items()}
+            named = {name: v.float() for name, v in model.dynamics.outputs(means, t).items()}
+        sizes = {name: _median_norm(v) for name, v in named.items()}
         if "center" in named:  # and the equivalent parameters they convert to (Eq. 5)
-            sizes["x - center"] = _median_norm(means - named["center"].float())
-            params = model.query_dynamics(means, t)
+            params = model.dynamics.params(named)
+            sizes["x - center"] = _median_norm(means - named["center"])
             sizes["v_bar"], sizes["a_bar"] = _median_norm(params.velocity), _median_norm(params.acceleration)
         print(
             f"  t={t:.3f} |x| {_median_norm(means):.3f} "
             + " ".join(f"|{k}| {v:.3f}" for k, v in sizes.items())
         )
-    at_t0 = model.deform(t0)["means"]
+    at_t0 = means  # the loop's last time is t0
     span = future - t0
     predicted = model.state_at(future, t_max)["means"] - at_t0
     reconstructed = at_t0 - model.deform(max(0.0, t0 - span))["means"]

@@ -161,8 +161,12 @@ class DynamicsField(nn.Module):
 
     def forward(self, x: torch.Tensor, t: float | torch.Tensor) -> DynamicsParams:
         """Dynamics parameters of particles at positions ``x`` [N, 3] at time ``t`` (float or [N, 1])."""
-        out = self.outputs(x, t)
-        zero = torch.zeros_like(x)
+        return self.params(self.outputs(x, t))
+
+    def params(self, out: dict[str, torch.Tensor]) -> DynamicsParams:
+        """``outputs`` as the integrator's parameters: zero accelerations for order 1, and the explicit
+        centre's motion converted to the equivalent one (Eq. 5) for the non-equivalent variant."""
+        zero = torch.zeros_like(out["angular_velocity"])
         acceleration = out.get("acceleration", zero)
         angular_acceleration = out.get("angular_acceleration", zero)
         if self.cfg.equivalent:
