@@ -115,7 +115,8 @@ class Bench:
     dynamic_iterations: int | None = None
     """Override the preset's dynamic iterations (a shorter schedule for large tables)."""
     variants: tuple[str, ...] = ()
-    """Subset of rows to run (e.g. TRACE DefGS, or dt=1 "no f_defo"); empty = all."""
+    """Subset of rows to run (e.g. TRACE DefGS, or dt=1 "no f_defo"); empty = all of the paper's.
+    The ablations also take our options beside the paper's switches (e.g. "skip static")."""
     report_only: bool = False
     """Train nothing: tabulate the finished runs of these scenes and variants, skip the others."""
     validation: float | None = None
@@ -196,16 +197,17 @@ def main(argv: list[str] | None = None) -> None:
 
             records = run_raster_bench(json_path=a.json)
         else:
-            from .bench import ABLATIONS, METHODS, run_field_bench, run_variant_table
+            from .bench import ABLATIONS, METHODS, OPTIONS, run_field_bench, run_variant_table
 
             if a.what == "fields":
                 records = run_field_bench()
             else:
-                variants = METHODS if a.what == "methods" else ABLATIONS
-                unknown = set(a.variants) - set(variants)
+                table = METHODS if a.what == "methods" else ABLATIONS
+                known = table if a.what == "methods" else ABLATIONS | OPTIONS
+                unknown = set(a.variants) - set(known)
                 if unknown:
-                    raise SystemExit(f"unknown variants {sorted(unknown)}; choose from {list(variants)}")
-                variants = {k: v for k, v in variants.items() if not a.variants or k in a.variants}
+                    raise SystemExit(f"unknown variants {sorted(unknown)}; choose from {list(known)}")
+                variants = {k: v for k, v in known.items() if k in a.variants} if a.variants else table
                 overrides = (
                     {} if a.dynamic_iterations is None else {"dynamic_iterations": a.dynamic_iterations}
                 )

@@ -99,6 +99,13 @@ class DynamicStageConfig:
     freeze_static_auto: bool = True
     """After training, choose the freeze threshold on the training images (pseudo-extrapolation over
     the last training frames, ``train/calibrate.py``); stored in the checkpoint."""
+    skip_static: float = 0.0
+    """Once densification has stopped and the sampled time range covers the training span, mark the
+    Gaussians whose f_defo displacement over that span stays below this fraction of the scene extent
+    as static: from then on they keep their canonical geometry at every time and f_defo and f_trd are
+    evaluated on the moving Gaussians only (the fields' cost is proportional to the points they see,
+    and most of a scene usually stands still). 0 = off (the paper). Needs f_defo; not combinable with
+    ``rotation_consistency``, whose neighbourhoods span static and moving Gaussians."""
 
 
 @dataclass
@@ -191,7 +198,9 @@ def cpu_fast() -> TrainConfig:
         dynamics=DynamicsConfig(
             depth=4, width=64, num_frequencies=6, time_frequencies=3, detach_acceleration_features=True
         ),
-        dynamic=DynamicStageConfig(acceleration_consistency=0.01),
+        # the fields skip the Gaussians that have not moved by the end of densification: 25-33% less
+        # time per step where half to three quarters of a scene stands still (docs/DESIGN.md)
+        dynamic=DynamicStageConfig(acceleration_consistency=0.01, skip_static=0.003),
     )
     return cfg
 

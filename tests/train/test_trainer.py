@@ -41,7 +41,9 @@ ABLATIONS = [
     {"deformation__kind": "hexplane"},
     {"bf16": True},
     {"dynamic__acceleration_consistency": 0.0, "dynamics__detach_acceleration_features": False},
-    {"dynamic__rotation_consistency": 0.01},
+    {"dynamic__rotation_consistency": 0.01, "dynamic__skip_static": 0.0},
+    {"dynamic__skip_static": 0.5},
+    {"method": "defgs", "dynamic__skip_static": 0.5},
 ]
 
 
@@ -78,6 +80,13 @@ def test_resume_refuses_a_checkpoint_trained_with_other_settings(tiny_scene, tmp
         Trainer(apply_overrides(cfg, {"dynamic__dt_frames": 3.0}), progress=False)
     # where things are written is not a training setting
     assert Trainer(apply_overrides(cfg, {"checkpoint_every": 7, "log_every": 3}), progress=False).step == 1
+    # a checkpoint from before a setting existed resumes when the setting keeps its default
+    ckpt = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)
+    del ckpt["config"]["dynamic"]["skip_static"]
+    torch.save(ckpt, tmp_path / "run" / "checkpoint.pt")
+    assert Trainer(apply_overrides(cfg, {"dynamic__skip_static": 0.0}), progress=False).step == 1
+    with pytest.raises(ValueError, match=r"dynamic\.skip_static"):
+        Trainer(apply_overrides(cfg, {"dynamic__skip_static": 0.01}), progress=False)
 
 
 def _perturbed_model(scene, run, **kw):
@@ -141,7 +150,11 @@ def test_rotation_consistency_trains_only_the_dynamics_field(tiny_scene, tmp_pat
     reaches f_trd, not f_defo or the Gaussians, and the neighbours are the nearest ones, found again
     when the number of Gaussians changes."""
     model = _perturbed_model(
-        tiny_scene, tmp_path / "on", dynamic__rotation_consistency=0.5, dynamic__acceleration_consistency=0.0
+        tiny_scene,
+        tmp_path / "on",
+        dynamic__rotation_consistency=0.5,
+        dynamic__acceleration_consistency=0.0,
+        dynamic__skip_static=0.0,
     )
     _, losses = model.training_state(0.25, 0.5)
     assert set(losses) == {"rotation"} and losses["rotation"] > 0
@@ -232,3 +245,52 @@ def test_hexplane_planes_train_with_their_own_rate(tiny_scene, tmp_path):
     assert not grid & {id(p) for p in groups["fields"]["params"]}
     assert groups["grid"]["lr"] == pytest.approx(cfg.optim.grid_lr * trainer.extent)  # 4DGS: x extent
     assert groups["fields"]["lr"] == pytest.approx(cfg.optim.field_lr)
+
+
+def test_skip_static_moves_only_the_moving_gaussians_and_those_exactly(tiny_scene, tmp_path):
+    """With Gaussians marked static, they keep their canonical geometry at every time (training state,
+    f_defo, extrapolation) and take no gradient from the fields; the others get the same values as
+    when the fields see every Gaussian."""
+    model = _perturbed_model(tiny_scene, tmp_path / "a", dynamic__acceleration_consistency=0.0)
+    g = model.gaussians
+    static = torch.rand(g["means"].shape[0], generator=torch.Generator().manual_seed(1)) < 0.5
+    whole = [model.deform(0.3), model.training_state(0.25, 0.5)[0], model.state_at(1.2, 0.5)]
+    model.set_static_mask(static)
+    masked = [model.deform(0.3), model.training_state(0.25, 0.5)[0], model.state_at(1.2, 0.5)]
+    moving = ~static
+    for full, part in zip(whole, masked, strict=True):
+        for name in ("means", "quats"):
+            torch.testing.assert_close(part[name][moving], full[name][moving], rtol=1e-5, atol=1e-6)
+            assert torch.equal(part[name][static], g[name][static])
+            assert not torch.allclose(full[name][static], g[name][static])  # the fields did move them
+    assert torch.equal(masked[0]["scales"][static], g["scales"][static])
+    weights = torch.randn_like(g["means"])
+    loss = (masked[1]["means"][static] * weights[static]).sum()
+    grads = torch.autograd.grad(loss, [g["means"], *model.field_parameters()], allow_unused=True)
+    torch.testing.assert_close(grads[0][static], weights[static])  # straight to the canonical means
+    assert all(x is None or not x.any() for x in grads[1:])
+
+
+def test_skip_static_marks_by_displacement_and_is_kept_in_the_checkpoint(tiny_scene, tmp_path):
+    model = _perturbed_model(tiny_scene, tmp_path / "a")
+    most = model.max_displacement(0.5, 16)
+    threshold = float(most.median())
+    assert model.mark_static(threshold, 0.5) == pytest.approx(float((most < threshold).float().mean()))
+    assert torch.equal(model.static_mask, most < threshold)
+    assert not model.max_displacement(0.5, 16)[model.static_mask].any()
+    # in training: marked once, at the step where densification has stopped and every time is sampled
+    cfg = _cfg(tiny_scene, tmp_path / "run", dynamic__skip_static=1.0, dynamic_iterations=4)
+    trainer = Trainer(cfg, progress=False)
+    marking = trainer._static_marking_step()
+    assert marking == max(trainer.strategy.refine_stop, cfg.static_iterations + 1)
+    while trainer.step <= marking:
+        assert (trainer.model.static_mask is None) == (trainer.step <= marking)
+        trainer.train_step()
+    mask = trainer.model.static_mask
+    assert mask is not None and trainer.static_fraction == pytest.approx(float(mask.float().mean()))
+    trainer.save()
+    assert torch.equal(Trainer(cfg, progress=False).model.static_mask, mask)  # resumed
+    assert Trainer(cfg, progress=False).train()["static_fraction"] == trainer.static_fraction
+    assert torch.equal(load_run(tmp_path / "run", device="cpu")[0].static_mask, mask)
+    with pytest.raises(ValueError, match="skip-static 0"):
+        Trainer(apply_overrides(cfg, {"dynamic__rotation_consistency": 0.01}), progress=False)

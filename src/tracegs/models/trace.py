@@ -37,6 +37,10 @@ class TraceModel(nn.Module):
         self.dynamics = DynamicsField(cfg.dynamics) if cfg.method == "trace" else None
         self.freeze_threshold: float | None = None
         """Freeze threshold chosen after training (``train/calibrate.py``); None: the config's."""
+        self.static_mask: torch.Tensor | None = None
+        """[N] bool: Gaussians marked static during training (``dynamic.skip_static``), kept at their
+        canonical geometry at every time and skipped by the fields; None: the fields move them all."""
+        self._moving: torch.Tensor | None = None  # indices of the others
         # the rotation consistency's [N, k] neighbours, the means parameter they were found for and
         # their age in calls (a plain dict: a Parameter held as an attribute would join the module)
         self._neighbours: dict = {"of": None, "index": None, "age": 0}
@@ -82,8 +86,10 @@ class TraceModel(nn.Module):
         g = self.gaussians
         if self.deformation is None:
             return [{"means": g["means"], "quats": g["quats"], "scales": g["scales"]} for _ in times]
-        n = g["means"].shape[0]
-        x0 = g["means"].detach() if self.cfg.deformation.detach_input else g["means"]
+        rows = self._moving_rows()
+        canonical = [g[k] if rows is None else g[k][rows] for k in ("means", "quats", "scales")]
+        x0 = canonical[0].detach() if self.cfg.deformation.detach_input else canonical[0]
+        n = x0.shape[0]
         if len(times) == 1:  # one time for all points: the field takes it as a bias (``linear_of_parts``)
             x, t = x0, times[0]
         else:
@@ -93,11 +99,12 @@ class TraceModel(nn.Module):
             dx, dq, dlog_s = self.deformation(x, t)
         states = []
         for k in range(len(times)):
-            rows = slice(k * n, (k + 1) * n)
-            means, quats, log_scales = apply_deformation(
-                g["means"], g["quats"], g["scales"], dx[rows].float(), dq[rows].float(), dlog_s[rows].float()
-            )
-            states.append({"means": means, "quats": quats, "scales": log_scales})
+            block = slice(k * n, (k + 1) * n)
+            moved = apply_deformation(*canonical, dx[block].float(), dq[block].float(), dlog_s[block].float())
+            names = ("means", "quats", "scales")
+            if rows is not None:  # the static Gaussians keep their canonical rows
+                moved = [g[name].index_copy(0, rows, v) for name, v in zip(names, moved, strict=True)]
+            states.append(dict(zip(names, moved, strict=True)))
         return states
 
     def query_dynamics(self, means: torch.Tensor, t: float):
@@ -105,6 +112,39 @@ class TraceModel(nn.Module):
         with self.autocast():
             params = self.dynamics(means, t)
         return type(params)(*[None if p is None else p.float() for p in params])
+
+    # ----- Gaussians that stand still (``dynamic.skip_static``) ---------------------------------------
+    @torch.no_grad()
+    def mark_static(self, threshold: float, t_max: float, samples: int = 16) -> float:
+        """Mark the Gaussians whose f_defo displacement stays below ``threshold`` (scene units) at
+        ``samples + 1`` times in [0, t_max] as static; returns their fraction. Without f_defo nothing
+        is marked (what moves is not known)."""
+        self.set_static_mask(None)
+        if self.deformation is None:
+            return 0.0
+        self.set_static_mask(self.max_displacement(t_max, samples) < threshold)
+        return float(self.static_mask.float().mean())
+
+    def set_static_mask(self, mask: torch.Tensor | None) -> None:
+        """Set (or clear, with None) the [N] bool mask of static Gaussians."""
+        if mask is not None:
+            n = self.gaussians["means"].shape[0]
+            if mask.shape != (n,) or mask.dtype != torch.bool:
+                raise ValueError(
+                    f"static mask: expected a bool tensor of shape ({n},), got {tuple(mask.shape)}"
+                )
+            mask = mask.to(self.aabb.device)
+        self.static_mask = mask
+        self._moving = None if mask is None else torch.nonzero(~mask).squeeze(1)
+
+    def _moving_rows(self) -> torch.Tensor | None:
+        """Indices of the Gaussians the fields move, or None when they move all of them."""
+        if self._moving is not None and self.static_mask.shape[0] != self.gaussians["means"].shape[0]:
+            raise RuntimeError(
+                "the set of Gaussians changed after they were marked static (densification must have "
+                "stopped before dynamic.skip_static marks them)"
+            )
+        return self._moving
 
     # ----- the Gaussians of a training step -----------------------------------------------------
     def training_state(
@@ -128,20 +168,26 @@ class TraceModel(nn.Module):
         start, *target = self.deform_many([t_prime, t] if at_t else [t_prime])
         x_start = start["means"].detach() if straight_through and not at_t else start["means"]
         query_time = t_prime if dyn.physics_derivation else t
-        params = self.query_dynamics(x_start, query_time)
-        means, quats = integrate(
-            x_start, start["quats"], params, t - t_prime, self.dt_max, method=dyn.integrator
-        )[:2]
+        rows = self._moving_rows()  # f_trd moves these; the static Gaussians stay where they are
+        x_run, q_run = (x_start, start["quats"]) if rows is None else (x_start[rows], start["quats"][rows])
+        params = self.query_dynamics(x_run, query_time)
+        means, quats = integrate(x_run, q_run, params, t - t_prime, self.dt_max, method=dyn.integrator)[:2]
         losses = {}
         learns_accelerations = self.cfg.dynamics.order >= 2 and dyn.physics_derivation
         if dyn.acceleration_consistency > 0 and learns_accelerations and t != t_prime:
             with torch.no_grad():  # f_trd once more, where the integration ended
                 later = self.query_dynamics(means.detach(), t)
             gap = acceleration_consistency(params, later, t - t_prime)
+            if rows is not None:  # a mean over all Gaussians: the static ones' gap is zero
+                gap = gap * (rows.numel() / x_start.shape[0])
             losses["acceleration"] = dyn.acceleration_consistency * gap
         if dyn.rotation_consistency > 0:
+            if rows is not None:
+                raise ValueError("dynamic.rotation_consistency cannot be combined with dynamic.skip_static")
             gap = rotation_consistency(params, x_start, self.canonical_neighbours())  # detaches x itself
             losses["rotation"] = dyn.rotation_consistency * gap
+        if rows is not None:
+            means, quats = x_start.index_copy(0, rows, means), start["quats"].index_copy(0, rows, quats)
         if straight_through:
             shift = (target[0] if at_t else start)["means"]
             means = means + (shift - shift.detach())
@@ -195,6 +241,8 @@ class TraceModel(nn.Module):
         threshold = dyn.freeze_static_threshold if self.freeze_threshold is None else self.freeze_threshold
         if moving is None and threshold > 0 and self.deformation is not None:
             moving = self.moving_mask(t0, threshold)
+        if self.static_mask is not None:  # marked static in training: never moved by the physics
+            moving = ~self.static_mask if moving is None else moving & ~self.static_mask
         span = t - t0
         n = max(1, math.ceil(abs(span) / self.dt_max - 1e-9))
         h = span / n

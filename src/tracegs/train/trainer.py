@@ -8,6 +8,7 @@ A run folder holds ``config.json`` (the resolved config), ``checkpoint.pt`` (wri
 from __future__ import annotations
 
 import json
+import math
 import random
 import time
 from collections import defaultdict
@@ -16,7 +17,7 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
-from ..config import TrainConfig, config_to_dict, load_config, save_config
+from ..config import TrainConfig, config_from_dict, config_to_dict, load_config, save_config
 from ..data.blender import load_scene
 from ..data.dataset import ViewDataset, frame_interval
 from ..models.gaussians import create_gaussians, empty_like_params, random_gaussians
@@ -67,6 +68,12 @@ class Trainer:
         self.extent = scene_extent_from_cameras(self.data.camera_centers())
         self.aabb = default_aabb(cfg, self.data).to(self.device)
         self.static_views = self._static_views()
+        if cfg.dynamic.skip_static > 0 and cfg.dynamic.rotation_consistency > 0:
+            raise ValueError(
+                "dynamic.rotation_consistency needs the fields on every Gaussian: "
+                "set --dynamic.skip-static 0 with it"
+            )
+        self.static_fraction: float | None = None  # of the Gaussians marked static (dynamic.skip_static)
         gaussians = initial_gaussians(cfg, self.aabb, self.device)
         self.model = TraceModel(cfg, gaussians, self.aabb, self.dt_frame).to(self.device)
         self.optimizers = gaussian_optimizers(self.model.gaussians, cfg.optim, self.extent)
@@ -104,6 +111,12 @@ class Trainer:
             t_prime = t + sign * dt
         return min(max(t_prime, 0.0), self.t_max)
 
+    def _static_marking_step(self) -> int:
+        """Step at which ``dynamic.skip_static`` marks the static Gaussians: densification has stopped
+        (the set of Gaussians is final) and the sampled time range covers the training span."""
+        growth = math.ceil(self.cfg.dynamic.time_growth_fraction * self.cfg.dynamic_iterations)
+        return max(self.strategy.refine_stop, self.cfg.static_iterations + growth)
+
     # ----- one step -------------------------------------------------------------------------------
     def sh_degree(self) -> int:
         return min(self.cfg.sh_degree, self.step // max(self.cfg.sh_degree_interval, 1))
@@ -125,6 +138,9 @@ class Trainer:
         else:
             if dyn_step == 0:
                 self.model.begin_dynamic_stage()
+            skip = cfg.dynamic.skip_static
+            if skip > 0 and self.model.static_mask is None and step == self._static_marking_step():
+                self.static_fraction = self.model.mark_static(skip * self.extent, self.t_max)
             view = self.data[self._dynamic_view(dyn_step)]
             physics = dyn_step >= cfg.dynamic.warmup_deformation_steps
             state, extra_losses = self.model.training_state(
@@ -214,6 +230,7 @@ class Trainer:
             "t_max": self.t_max,
             "freeze_threshold": self.model.freeze_threshold,
             "freeze_psnr": self.freeze_psnr,
+            "static_fraction": self.static_fraction,
             "ms_per_iteration": {k: round(1000 * v / steps, 2) for k, v in self.timings.items()},
         }
 
@@ -235,6 +252,7 @@ class Trainer:
             "config": config_to_dict(self.cfg),
             "t_max": self.t_max,
             "freeze_threshold": self.model.freeze_threshold,
+            "static_mask": self.model.static_mask,
             "model": self.model.state_dict(),
             "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
             "field_optimizer": self.field_opt.state_dict() if self.field_opt is not None else None,
@@ -244,7 +262,10 @@ class Trainer:
 
     def _resume(self, path: Path) -> None:
         ckpt = torch.load(path, map_location=self.device, weights_only=False)
-        changed = _changed_settings(ckpt.get("config", {}), config_to_dict(self.cfg))
+        saved = ckpt.get("config", {})
+        if saved:  # settings added since the checkpoint was written read as their defaults
+            saved = config_to_dict(config_from_dict(TrainConfig, saved))
+        changed = _changed_settings(saved, config_to_dict(self.cfg))
         if changed:
             raise ValueError(
                 f"{path}: the checkpoint was trained with other settings ({', '.join(changed)}); "
@@ -260,6 +281,9 @@ class Trainer:
             self.field_opt.load_state_dict(ckpt["field_optimizer"])
         self.step, self.train_seconds = ckpt["step"], ckpt["train_seconds"]
         self.model.freeze_threshold = ckpt.get("freeze_threshold")
+        self.model.set_static_mask(ckpt.get("static_mask"))
+        if self.model.static_mask is not None:
+            self.static_fraction = float(self.model.static_mask.float().mean())
         self.timings.update(ckpt.get("timings", {}))
         torch.set_rng_state(ckpt["rng"]["torch"])
         random.setstate(ckpt["rng"]["python"])
@@ -299,6 +323,7 @@ def load_run(run: str | Path, device: str = "auto") -> tuple[TraceModel, TrainCo
     model.load_state_dict(state)
     model.eval()
     model.freeze_threshold = ckpt.get("freeze_threshold")
+    model.set_static_mask(ckpt.get("static_mask"))
     if model.freeze_threshold is None and cfg.dynamic.freeze_static_auto and Path(cfg.data).is_dir():
         # a checkpoint written before training ended (or by an older version): choose it now
         centers = ViewDataset(
