@@ -120,3 +120,16 @@ def test_tables_show_rows_scene_by_scene_in_the_variant_order():
         ["| a", "TRACE"],
         ["| a", "mine"],
     ]
+
+
+def test_cli_ablations_take_our_options_as_rows_on_request(tmp_path, capsys):
+    from tracegs.bench import OPTIONS
+    from tracegs.cli import main
+
+    scene = str(write_tiny_scene(tmp_path / "scene", size=32))
+    common = ["bench", "ablations", "--scenes", scene, "--out", str(tmp_path / "bench"), "--report-only"]
+    main([*common, "--variants", "skip static", "--preset", "tiny"])  # known: nothing finished, no rows
+    assert "no finished run" in capsys.readouterr().out
+    assert not set(OPTIONS) & set(ABLATIONS)  # never a default row of the paper's table
+    with pytest.raises(SystemExit, match="skip static"):  # the error lists it among the choices
+        main([*common, "--variants", "no such row"])
