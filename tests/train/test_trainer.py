@@ -87,6 +87,11 @@ def test_resume_refuses_a_checkpoint_trained_with_other_settings(tiny_scene, tmp
     assert Trainer(apply_overrides(cfg, {"dynamic__skip_static": 0.0}), progress=False).step == 1
     with pytest.raises(ValueError, match=r"dynamic\.skip_static"):
         Trainer(apply_overrides(cfg, {"dynamic__skip_static": 0.01}), progress=False)
+    # a checkpoint with a setting this version does not know names the file
+    ckpt["config"]["dynamic"]["no_such_setting"] = 1
+    torch.save(ckpt, tmp_path / "run" / "checkpoint.pt")
+    with pytest.raises(ValueError, match=r"checkpoint\.pt: unknown config field .*no_such_setting"):
+        Trainer(cfg, progress=False)
 
 
 def _perturbed_model(scene, run, **kw):

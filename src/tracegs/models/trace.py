@@ -183,7 +183,10 @@ class TraceModel(nn.Module):
             losses["acceleration"] = dyn.acceleration_consistency * gap
         if dyn.rotation_consistency > 0:
             if rows is not None:
-                raise ValueError("dynamic.rotation_consistency cannot be combined with dynamic.skip_static")
+                raise ValueError(
+                    "dynamic.rotation_consistency needs the fields on every Gaussian: "
+                    "set --dynamic.skip-static 0 with it"
+                )
             gap = rotation_consistency(params, x_start, self.canonical_neighbours())  # detaches x itself
             losses["rotation"] = dyn.rotation_consistency * gap
         if rows is not None:

@@ -264,7 +264,10 @@ class Trainer:
         ckpt = torch.load(path, map_location=self.device, weights_only=False)
         saved = ckpt.get("config", {})
         if saved:  # settings added since the checkpoint was written read as their defaults
-            saved = config_to_dict(config_from_dict(TrainConfig, saved))
+            try:
+                saved = config_to_dict(config_from_dict(TrainConfig, saved))
+            except ValueError as err:
+                raise ValueError(f"{path}: {err}; train into a new --run folder") from err
         changed = _changed_settings(saved, config_to_dict(self.cfg))
         if changed:
             raise ValueError(
