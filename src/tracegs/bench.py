@@ -133,6 +133,8 @@ ABLATIONS = {
 # (`--variants "skip static"`); not part of a table's default rows.
 OPTIONS = {
     "skip static": {"dynamic__skip_static": 0.003},
+    "budget 14k": {"densify__max_gaussians": 14_000},
+    "f_defo 4x128": {"deformation__width": 128},
 }
 
 

@@ -381,3 +381,34 @@ def test_parser_reads_the_folder(fan_dir):
             u, v, _ = _project(world, np.array(entry["transform_matrix"]), data["camera_angle_x"], RES)
             np.testing.assert_allclose(uv[:, 0] / uv[:, 2], u, atol=1e-3)
             np.testing.assert_allclose(uv[:, 1] / uv[:, 2], v, atol=1e-3)
+
+
+def test_turn_is_the_rotation_made_between_two_times():
+    from tracegs.data.synth.ceiling import turn
+    from tracegs.data.synth.motion import axis_angle_to_matrix
+
+    blades = get_scene("fan").parts[1].motion  # 2 rad per unit of t about z
+    np.testing.assert_allclose(turn(blades, 0.7, 0.2), axis_angle_to_matrix((0, 0, 1), 1.0), atol=1e-12)
+    np.testing.assert_allclose(turn(blades, 0.2, 0.7), axis_angle_to_matrix((0, 0, 1), -1.0), atol=1e-12)
+    chair = get_scene("foldingchair").parts[1].motion  # angular acceleration: the angle is quadratic in t
+    theta = lambda t: chair.angular_velocity * t + 0.5 * chair.angular_acceleration * t**2  # noqa: E731
+    np.testing.assert_allclose(
+        turn(chair, 0.9, 0.4), axis_angle_to_matrix(chair.axis, theta(0.9) - theta(0.4)), atol=1e-12
+    )
+
+
+def test_frozen_appearance_is_exact_at_its_own_frame_and_costs_where_shading_changes(fan_dir, tmp_path):
+    from tracegs.data.synth.ceiling import SceneFolder, frozen_appearance
+
+    scene = SceneFolder(fan_dir)
+    assert scene.check_reproduction([FRAMES - 1]) == 2  # the renderer reproduces the stored bytes
+    same = frozen_appearance(scene, [FRAMES - 1], [FRAMES - 1])
+    assert same["mse"] < 1e-9 and same["frames_scored"] == VIEWS
+    earlier = frozen_appearance(scene, [0], [FRAMES - 1])  # blades lit as at t = 0, turned 2 rad since
+    parts = earlier["per_part"]
+    assert parts["background"]["error_share"] == 0.0
+    assert 10 < parts["blades"]["psnr"] < 45 and earlier["mse"] > 1e-5
+    averaged = frozen_appearance(scene, [0, FRAMES - 1], [FRAMES - 1])  # the mean of both appearances
+    assert 0 < averaged["mse"] < earlier["mse"]
+    with pytest.raises(FileNotFoundError, match="synth.json"):
+        SceneFolder(tmp_path)

@@ -1,0 +1,43 @@
+"""The frozen-appearance ceiling of synthetic scenes: the best extrapolation PSNR that a model moving
+Gaussians of constant colour can reach there (``tracegs.data.synth.ceiling``; docs/BENCHMARKS.md).
+
+Usage: .venv/bin/python benchmarks/appearance_ceiling.py SCENE_FOLDER [...] [--json F] [--mean-frames N]
+(SCENE_FOLDER: written by ``tracegs synth``, e.g. runs/bench/scenes/fan_128.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from tracegs.data.synth.ceiling import appearance_ceiling
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("folders", nargs="+", type=Path)
+    parser.add_argument("--handover-frames", type=float, default=4.0, help="as dynamic.handover_frames")
+    parser.add_argument(
+        "--mean-frames", type=int, default=12, help="training frames averaged by the mean bound"
+    )
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args()
+    results = []
+    for folder in args.folders:
+        r = appearance_ceiling(folder, args.handover_frames, args.mean_frames)
+        results.append(r)
+        for mode in ("handover", "mean"):
+            b = r[mode]
+            parts = ", ".join(
+                f"{k} {v['psnr']:.1f} dB ({100 * v['error_share']:.0f}%)" for k, v in b["per_part"].items()
+            )
+            print(
+                f"{r['scene']} ({mode}): {b['mae_psnr']:.2f} dB MAE-PSNR over {b['frames_scored']} frames; {parts}"
+            )
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2))
+
+
+if __name__ == "__main__":
+    main()
