@@ -11,6 +11,7 @@ import argparse
 import json
 from pathlib import Path
 
+from tracegs.bench_report import machine_description
 from tracegs.data.synth.ceiling import appearance_ceiling
 
 
@@ -25,12 +26,15 @@ def main() -> None:
     args = parser.parse_args()
     results = []
     for folder in args.folders:
-        r = appearance_ceiling(folder, args.handover_frames, args.mean_frames)
+        r = appearance_ceiling(folder, args.handover_frames, args.mean_frames) | {
+            "machine": machine_description()
+        }
         results.append(r)
         for mode in ("handover", "mean"):
             b = r[mode]
             parts = ", ".join(
-                f"{k} {v['psnr']:.1f} dB ({100 * v['error_share']:.0f}%)" for k, v in b["per_part"].items()
+                f"{k} {v['psnr'] or float('inf'):.1f} dB ({100 * v['error_share']:.0f}%)"
+                for k, v in b["per_part"].items()
             )
             print(
                 f"{r['scene']} ({mode}): {b['mae_psnr']:.2f} dB MAE-PSNR over {b['frames_scored']} frames; {parts}"

@@ -45,6 +45,10 @@ class Synth:
     views: int = 15
     frames: int = 60
     seed: int = 0
+    sun: float = 2.0
+    """Irradiance of the sun (directional light, hard shadows); 0 = no shading and no shadows."""
+    ambient: float = 0.4
+    """Radiance of a surface of albedo 1 lit by the ambient term alone."""
 
 
 @dataclass
@@ -169,7 +173,7 @@ def main(argv: list[str] | None = None) -> None:
         from .data.synth import synthesize
 
         a = tyro.cli(Synth, args=rest, prog=prog)
-        synthesize(a.scene, a.out, resolution=a.resolution, views=a.views, frames=a.frames, seed=a.seed)
+        synthesize(a.scene, a.out, a.resolution, a.views, a.frames, a.seed, sun=a.sun, ambient=a.ambient)
     elif command == "render":
         from .export.render import render_command
 

@@ -335,6 +335,10 @@ def test_bad_input_gives_clear_errors(tmp_path):
         synthesize("fan", tmp_path / "x", views=3, train_views=3, progress=False)
     with pytest.raises(ValueError, match="frames"):
         synthesize("fan", tmp_path / "x", frames=1, progress=False)
+    with pytest.raises(ValueError, match="sun and ambient"):
+        synthesize("fan", tmp_path / "x", sun=0.0, ambient=0.0, progress=False)
+    with pytest.raises(ValueError, match="sun and ambient"):
+        synthesize("fan", tmp_path / "x", sun=-1.0, progress=False)
     assert not (tmp_path / "x").exists()
 
 
@@ -412,3 +416,19 @@ def test_frozen_appearance_is_exact_at_its_own_frame_and_costs_where_shading_cha
     assert 0 < averaged["mse"] < earlier["mse"]
     with pytest.raises(FileNotFoundError, match="synth.json"):
         SceneFolder(tmp_path)
+
+
+def test_without_the_sun_a_turning_part_keeps_its_appearance(tmp_path_factory, fan_dir):
+    from tracegs.data.synth.ceiling import SceneFolder, frozen_appearance
+
+    flat = _make(tmp_path_factory, "fan", sun=0.0, ambient=1.0)
+    settings = json.loads((flat / "gt" / "synth.json").read_text())
+    assert (settings["sun"], settings["ambient"]) == (0.0, 1.0)
+    lit, unlit = (iio.imread(d / "train" / "c00_f000.png").astype(float) for d in (fan_dir, flat))
+    assert np.array_equal(lit[..., 3], unlit[..., 3]) and not np.array_equal(lit, unlit)  # same geometry
+    scene = SceneFolder(flat)
+    assert scene.check_reproduction([FRAMES - 1]) == 2  # the folder's own light is re-rendered
+    blades = frozen_appearance(scene, [0], [FRAMES - 1])["per_part"]["blades"]
+    assert blades["psnr"] is None  # turned 2 rad, looks exactly as it did at t = 0
+    shaded = frozen_appearance(SceneFolder(fan_dir), [0], [FRAMES - 1])["per_part"]["blades"]
+    assert shaded["psnr"] is not None and shaded["psnr"] < 45

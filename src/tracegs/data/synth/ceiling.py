@@ -30,6 +30,7 @@ and samples.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -68,6 +69,8 @@ class SceneFolder:
         s = json.loads(path.read_text())
         self.views, self.frames, self.seed, self.spp = s["views"], s["frames"], s["seed"], s["spp"]
         self.train_frames = s["train_frames"]
+        default = Lighting()  # folders written before the light was a setting have the default one
+        self.lighting = Lighting(s.get("ambient", default.ambient), s.get("sun", default.sun_irradiance))
         self.spec = get_scene(s["scene"])
         self.motions = [p.motion for p in self.spec.parts]
         bounds = motion_bounds(self.spec)
@@ -100,14 +103,15 @@ class SceneFolder:
 
     def lit_as_at(self, part: int, f: int, k: int):
         """The scene posed at frame ``f`` under the sun turned as ``part`` turned since frame ``k``."""
-        sun = turn(self.motions[part], self.times[f], self.times[k]) @ np.asarray(Lighting().sun_direction)
-        scene = build_scene(self.spec, Lighting(sun_direction=tuple(float(x) for x in sun)))
+        sun = turn(self.motions[part], self.times[f], self.times[k]) @ np.asarray(self.lighting.sun_direction)
+        lighting = dataclasses.replace(self.lighting, sun_direction=tuple(float(x) for x in sun))
+        scene = build_scene(self.spec, lighting)
         pose(scene, transforms_at(self.motions, self.times[f]))
         return scene
 
     def check_reproduction(self, frames: list[int]) -> int:
         """Re-render the first and last camera of ``frames``; raise if a byte differs. Returns the count."""
-        scene = build_scene(self.spec)
+        scene = build_scene(self.spec, self.lighting)
         for f in frames:
             pose(scene, transforms_at(self.motions, self.times[f]))
             for c in (0, self.views - 1):
@@ -156,7 +160,7 @@ def frozen_appearance(scene: SceneFolder, appearance_frames: list[int], score_fr
             scene.names[i]: {
                 "pixel_share": float(pixels[i] / pixels.sum()),
                 "error_share": float(error[i] / error.sum()) if error.sum() > 0 else 0.0,
-                "psnr": mae_psnr([error[i] / pixels[i]]),
+                "psnr": mae_psnr([error[i] / pixels[i]]) if error[i] > 0 else None,  # None: exact
             }
             for i in range(n)
             if pixels[i] > 0
@@ -173,7 +177,7 @@ def appearance_ceiling(folder: str | Path, handover_frames: float = 4.0, mean_fr
     scene = SceneFolder(folder)
     f_end = scene.train_frames - 1
     future = list(range(f_end + 1, scene.frames))
-    checked = scene.check_reproduction(future[:2])
+    checked = scene.check_reproduction(future[:3])
     spread = np.linspace(0, f_end, min(mean_frames, f_end + 1))
     handover = int(round(f_end - handover_frames))
     return {

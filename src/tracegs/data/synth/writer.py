@@ -32,6 +32,7 @@ from . import geometry as g
 from .cameras import Rig, Split, default_train_frames, default_val_views, make_rig, make_split
 from .motion import FORMULA, motion_record, transforms_at
 from .render import (
+    Lighting,
     build_scene,
     make_sensors,
     pose,
@@ -198,6 +199,8 @@ def synthesize(
     progress: bool = True,
     *,
     spp: int = DEFAULT_SPP,
+    sun: float = Lighting.sun_irradiance,
+    ambient: float = Lighting.ambient,
 ) -> Path:
     """Render ``scene`` (one of ``SCENES``) with ground truth into the folder ``out``; returns it.
 
@@ -205,8 +208,14 @@ def synthesize(
     ``train_frames`` frames (default round(46/60 * frames)) of the first ``train_views`` cameras
     (default views - max(1, round(0.2 * views))); val: the same frames of the other cameras; test:
     the remaining frames of every camera. The same arguments give byte-identical images.
+    ``sun`` and ``ambient`` set the light (``render.Lighting``): ``sun=0`` gives a scene whose surfaces
+    look the same whichever way they face (no shading, no shadows), for telling motion errors from
+    the shading changes that no motion of constant-colour Gaussians renders.
     """
     spec = _validate(scene, resolution, views, frames, train_views, train_frames, spp, seed)
+    if not (sun >= 0 and ambient >= 0 and sun + ambient > 0):
+        raise ValueError(f"sun and ambient must be >= 0 and not both 0, got sun={sun}, ambient={ambient}")
+    lighting = Lighting(ambient=float(ambient), sun_irradiance=float(sun))
     out = Path(out)
     n_train_views = views - default_val_views(views) if train_views is None else train_views
     n_train_frames = default_train_frames(frames) if train_frames is None else train_frames
@@ -223,7 +232,7 @@ def synthesize(
             (tmp / name).mkdir()
             (tmp / "gt" / "masks" / name).mkdir(parents=True)
         started = time.perf_counter()
-        ms = build_scene(spec)
+        ms = build_scene(spec, lighting)
         sensors = [make_sensors(c2w, rig.camera_angle_x, resolution, spp) for c2w in rig.c2w]
         bar = _progress(views * frames, progress, f"synth {scene}")
         for f, t in enumerate(times):
@@ -254,6 +263,8 @@ def synthesize(
             "train_views": n_train_views,
             "train_frames": n_train_frames,
             "spp": samples_per_pixel(spp),
+            "sun": lighting.sun_irradiance,
+            "ambient": lighting.ambient,
             "render_seconds": round(render_seconds, 2),
         }
         _write_json(tmp / "gt" / "synth.json", settings)
