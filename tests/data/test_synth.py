@@ -432,3 +432,11 @@ def test_without_the_sun_a_turning_part_keeps_its_appearance(tmp_path_factory, f
     assert blades["psnr"] is None  # turned 2 rad, looks exactly as it did at t = 0
     shaded = frozen_appearance(SceneFolder(fan_dir), [0], [FRAMES - 1])["per_part"]["blades"]
     assert shaded["psnr"] is not None and shaded["psnr"] < 45
+
+
+def test_the_cli_lights_scenes_as_the_library_does():
+    from tracegs.cli import Synth
+    from tracegs.data.synth.render import Lighting
+
+    cli = Synth(out=Path("x"))
+    assert (cli.sun, cli.ambient) == (Lighting().sun_irradiance, Lighting().ambient)
