@@ -16,7 +16,7 @@ import torch
 
 from tracegs.data.blender import load_image, load_scene
 from tracegs.eval.metrics import mae_psnr
-from tracegs.eval.protocol import PartErrors, _part_names
+from tracegs.eval.protocol import PartErrors, part_names
 from tracegs.train.trainer import load_run
 
 
@@ -25,7 +25,7 @@ def part_psnr_by_time(run: Path, split: str = "val") -> dict[float, dict[str, fl
     """{time: {part name: PSNR over that part's pixels in every camera of ``split`` at that time}}."""
     model, cfg, meta = load_run(run, device="cpu")
     data = Path(cfg.data)
-    names = _part_names(data)
+    names = part_names(data)
     if not names:
         raise ValueError(f"{data}: no gt/masks and gt/motion.json; part PSNRs need a `tracegs synth` scene")
     scene = load_scene(data, split, cfg.downscale)

@@ -98,10 +98,10 @@ def evaluate_run(
     if with_lpips:
         from .lpips import lpips as lpips_fn
     result: dict = {}
-    part_names = _part_names(data)
+    names = part_names(data)
     splits = split_frames(data, t_end, cfg.downscale, with_cameras=True, future_end=future_end)
     for split, frames in splits.items():
-        parts = PartErrors(part_names) if part_names and not half_res and cfg.downscale == 1 else None
+        parts = PartErrors(names) if names and not half_res and cfg.downscale == 1 else None
         by_time: dict[float, list[tuple[str, Frame]]] = defaultdict(list)
         for cameras, f in frames:
             by_time[f.time].append((cameras, f))
@@ -162,7 +162,7 @@ def evaluate_run(
     return result
 
 
-def _part_names(data: Path) -> dict[int, str]:
+def part_names(data: Path) -> dict[int, str]:
     """Part id -> name of a generated scene (``gt/motion.json``; 0 = background), else empty."""
     import json
 

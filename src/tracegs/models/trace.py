@@ -28,6 +28,11 @@ class TraceModel(nn.Module):
 
     def __init__(self, cfg, gaussians: nn.ParameterDict, aabb: torch.Tensor, frame_interval: float):
         super().__init__()
+        if cfg.dynamic.skip_static > 0 and cfg.dynamic.rotation_consistency > 0:
+            raise ValueError(
+                "dynamic.rotation_consistency needs the fields on every Gaussian: "
+                "set --dynamic.skip-static 0 with it"
+            )
         self.cfg = cfg
         self.gaussians = gaussians
         self.register_buffer("aabb", aabb.clone().float())
@@ -83,11 +88,11 @@ class TraceModel(nn.Module):
 
     def deform_many(self, times: list[float]) -> list[dict[str, torch.Tensor]]:
         """:meth:`deform` at several times in one batched pass of the field (larger GEMMs are faster)."""
-        g = self.gaussians
+        g, names = self.gaussians, ("means", "quats", "scales")
         if self.deformation is None:
-            return [{"means": g["means"], "quats": g["quats"], "scales": g["scales"]} for _ in times]
+            return [{name: g[name] for name in names} for _ in times]
         rows = self._moving_rows()
-        canonical = [g[k] if rows is None else g[k][rows] for k in ("means", "quats", "scales")]
+        canonical = [g[name] if rows is None else g[name][rows] for name in names]
         x0 = canonical[0].detach() if self.cfg.deformation.detach_input else canonical[0]
         n = x0.shape[0]
         if len(times) == 1:  # one time for all points: the field takes it as a bias (``linear_of_parts``)
@@ -101,7 +106,6 @@ class TraceModel(nn.Module):
         for k in range(len(times)):
             block = slice(k * n, (k + 1) * n)
             moved = apply_deformation(*canonical, dx[block].float(), dq[block].float(), dlog_s[block].float())
-            names = ("means", "quats", "scales")
             if rows is not None:  # the static Gaussians keep their canonical rows
                 moved = [g[name].index_copy(0, rows, v) for name, v in zip(names, moved, strict=True)]
             states.append(dict(zip(names, moved, strict=True)))
@@ -182,11 +186,6 @@ class TraceModel(nn.Module):
                 gap = gap * (rows.numel() / x_start.shape[0])
             losses["acceleration"] = dyn.acceleration_consistency * gap
         if dyn.rotation_consistency > 0:
-            if rows is not None:
-                raise ValueError(
-                    "dynamic.rotation_consistency needs the fields on every Gaussian: "
-                    "set --dynamic.skip-static 0 with it"
-                )
             gap = rotation_consistency(params, x_start, self.canonical_neighbours())  # detaches x itself
             losses["rotation"] = dyn.rotation_consistency * gap
         if rows is not None:

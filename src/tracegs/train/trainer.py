@@ -68,11 +68,6 @@ class Trainer:
         self.extent = scene_extent_from_cameras(self.data.camera_centers())
         self.aabb = default_aabb(cfg, self.data).to(self.device)
         self.static_views = self._static_views()
-        if cfg.dynamic.skip_static > 0 and cfg.dynamic.rotation_consistency > 0:
-            raise ValueError(
-                "dynamic.rotation_consistency needs the fields on every Gaussian: "
-                "set --dynamic.skip-static 0 with it"
-            )
         self.static_fraction: float | None = None  # of the Gaussians marked static (dynamic.skip_static)
         gaussians = initial_gaussians(cfg, self.aabb, self.device)
         self.model = TraceModel(cfg, gaussians, self.aabb, self.dt_frame).to(self.device)
