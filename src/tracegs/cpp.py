@@ -14,6 +14,7 @@ import os
 import platform
 import shutil
 import subprocess
+import time
 import warnings
 from pathlib import Path
 
@@ -52,6 +53,54 @@ def _first_line(err: BaseException) -> str:
     return text[-1] if text else type(err).__name__
 
 
+STALE_LOCK_SECONDS = 600.0
+"""A build lock older than this is taken as left behind by a killed process (a build takes 1-2 min)."""
+
+
+def wait_for_build_lock(build_dir: Path, max_age: float = STALE_LOCK_SECONDS, poll: float = 1.0) -> bool:
+    """Wait while another process holds ``build_dir/lock``; remove it once it is older than ``max_age``
+    seconds. Returns True if a stale lock was removed.
+
+    torch's JIT loader holds that lock while it (re)builds, and a later load waits for it without a
+    time limit: a process killed in that window (Ctrl-C during the first build, a killed run) would
+    otherwise leave every later run hanging silently.
+    """
+    lock = Path(build_dir) / "lock"
+    told = False
+    while True:
+        try:
+            age = time.time() - lock.stat().st_mtime
+        except OSError:  # no lock (or it just went away)
+            return False
+        if age >= max_age:
+            lock.unlink(missing_ok=True)
+            warnings.warn(
+                f"tracegs: removed the stale build lock {lock} ({age / 60:.0f} min old, left by a killed build)",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+            return True
+        if not told:
+            warnings.warn(
+                f"tracegs: waiting for the build lock {lock} (another process is building the extension; "
+                f"if none is, delete that file; it is taken as stale after {max_age / 60:.0f} min)",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+            told = True
+        time.sleep(poll)
+
+
+def _build_directory(name: str) -> Path | None:
+    """Where torch builds the extension ``name`` (None if this torch does not say)."""
+    try:
+        from torch.utils.cpp_extension import _get_build_directory
+
+        return Path(_get_build_directory(name, verbose=False))
+    except (ImportError, TypeError):
+        return None
+
+
 class NativeExtension:
     """One JIT-built C++ extension: ``load()`` builds it once, then returns the module (or ``None``).
 
@@ -78,6 +127,9 @@ class NativeExtension:
         # -march=native binaries are CPU specific: key the cache by CPU so that a home directory shared
         # between different machines never loads one built for another (SIGILL, no fallback possible).
         name = f"{self.name}_{cpu_tag()}" + ("" if openmp else "_serial")
+        build_dir = _build_directory(name)
+        if build_dir is not None:
+            wait_for_build_lock(build_dir)
         return load(name=name, sources=[str(self.source)], extra_cflags=cflags, extra_ldflags=ldflags)
 
     def load(self):
