@@ -135,6 +135,11 @@ OPTIONS = {
     "skip static": {"dynamic__skip_static": 0.003},
     "budget 14k": {"densify__max_gaussians": 14_000},
     "f_defo 4x128": {"deformation__width": 128},
+    "hold 2300": {"dynamic__hold_gaussians_steps": 2300},
+    "growth 0.4": {"dynamic__time_growth_fraction": 0.4},
+    "20k dynamic": {"dynamic_iterations": 20_000},
+    "12k dynamic": {"dynamic_iterations": 12_000},
+    "f_defo time L=3": {"deformation__time_frequencies": 3},
 }
 
 

@@ -299,3 +299,29 @@ def test_skip_static_marks_by_displacement_and_is_kept_in_the_checkpoint(tiny_sc
     assert torch.equal(load_run(tmp_path / "run", device="cpu")[0].static_mask, mask)
     with pytest.raises(ValueError, match="skip-static 0"):
         Trainer(apply_overrides(cfg, {"dynamic__rotation_consistency": 0.01}), progress=False)
+
+
+def test_hold_gaussians_trains_the_fields_alone_then_everything(tiny_scene, tmp_path):
+    """``dynamic.hold_gaussians_steps``: the first dynamic steps change the fields and not the Gaussians;
+    the step after the hold changes the Gaussians again."""
+    cfg = _cfg(tiny_scene, tmp_path / "run", dynamic__hold_gaussians_steps=2, densify__refine_stop=0)
+    cfg.dynamic_iterations = 3
+    trainer = Trainer(cfg, progress=False)
+    for _ in range(cfg.static_iterations):
+        trainer.train_step()
+
+    def snapshot():
+        model = trainer.model
+        return {k: v.detach().clone() for k, v in model.gaussians.items()}, [
+            p.detach().clone() for p in model.field_parameters()
+        ]
+
+    gaussians, fields = snapshot()
+    for _ in range(2):
+        trainer.train_step()
+    held, trained = snapshot()
+    assert all(torch.equal(gaussians[k], held[k]) for k in gaussians)
+    assert any(not torch.equal(a, b) for a, b in zip(fields, trained, strict=True))
+    trainer.train_step()
+    after, _ = snapshot()
+    assert any(not torch.equal(held[k], after[k]) for k in held)

@@ -163,8 +163,10 @@ class Trainer:
         t_render = time.perf_counter()
         losses["loss"].backward()
         t_backward = time.perf_counter()
+        hold = not static and dyn_step < cfg.dynamic.hold_gaussians_steps
         for opt in self.optimizers.values():
-            opt.step()
+            if not hold:
+                opt.step()
             opt.zero_grad(set_to_none=True)
         if not static and self.field_opt is not None:
             self.field_opt.step()
