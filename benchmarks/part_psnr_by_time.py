@@ -30,16 +30,21 @@ def part_psnr_by_time(run: Path, split: str = "val") -> dict[float, dict[str, fl
         raise ValueError(f"{data}: no gt/masks and gt/motion.json; part PSNRs need a `tracegs synth` scene")
     scene = load_scene(data, split, cfg.downscale)
     background = torch.tensor(scene.background)
-    by_time: dict[float, PartErrors] = defaultdict(lambda: PartErrors(names))
-    for f in sorted(scene.frames, key=lambda f: f.time):
-        state = model.state_at(f.time, meta["t_max"])
-        pred = model.render(state, f.camera, cfg.sh_degree, background).image.clamp(0, 1)
-        by_time[f.time].add(
-            pred, load_image(f, scene.background), data / "gt" / "masks" / split / f.image_path.name
-        )
+    frames_at: dict[float, list] = defaultdict(list)
+    for f in scene.frames:
+        frames_at[f.time].append(f)
+    by_time: dict[float, PartErrors] = {}
+    for t in sorted(frames_at):
+        state = model.state_at(t, meta["t_max"])  # once per time, for all of its cameras
+        errors = by_time[t] = PartErrors(names)
+        for f in frames_at[t]:
+            pred = model.render(state, f.camera, cfg.sh_degree, background).image.clamp(0, 1)
+            errors.add(
+                pred, load_image(f, scene.background), data / "gt" / "masks" / split / f.image_path.name
+            )
     return {
         t: {name: mae_psnr([float(e.error[i] / e.pixels[i])]) for i, name in names.items() if e.pixels[i] > 0}
-        for t, e in sorted(by_time.items())
+        for t, e in by_time.items()
     }
 
 

@@ -86,10 +86,10 @@ class DynamicStageConfig:
     """Neighbours per Gaussian for ``rotation_consistency`` (found in the canonical space, refreshed as
     the set of Gaussians changes)."""
     hold_gaussians_steps: int = 0
-    """For this many steps at the start of the dynamic stage the Gaussians keep their stage-1 values
-    and only the fields learn (0 = off, the paper): the fields first learn the motion of the first
-    time window, before the photometric loss can blur a moving part's appearance over the times f_defo
-    does not yet follow."""
+    """For this many steps at the start of the dynamic stage the optimiser leaves the Gaussians' values
+    as stage 1 left them and only the fields learn (densification goes on; 0 = off, the paper): the
+    fields first learn the motion of the first time window, before the photometric loss can blur a
+    moving part's appearance over the times f_defo does not yet follow."""
     warmup_deformation_steps: int = 0
     """Dynamic steps rendered with f_defo alone before the physics path is switched on."""
     handover_frames: float = 4.0

@@ -70,7 +70,9 @@ class SceneFolder:
         self.views, self.frames, self.seed, self.spp = s["views"], s["frames"], s["seed"], s["spp"]
         self.train_frames = s["train_frames"]
         default = Lighting()  # folders written before the light was a setting have the default one
-        self.lighting = Lighting(s.get("ambient", default.ambient), s.get("sun", default.sun_irradiance))
+        self.lighting = Lighting(
+            ambient=s.get("ambient", default.ambient), sun_irradiance=s.get("sun", default.sun_irradiance)
+        )
         self.spec = get_scene(s["scene"])
         self.motions = [p.motion for p in self.spec.parts]
         bounds = motion_bounds(self.spec)
