@@ -38,15 +38,25 @@ def _median(x: torch.Tensor):
 def report(run: Path) -> None:
     model, cfg, meta = load_run(run, device="cpu")
     t_max, gt = meta["t_max"], _gt(Path(cfg.data))
-    head = model.dynamics.head.weight[model.dynamics.slices["acceleration"]]
-    print(f"{run}: acceleration head mean |w| {head.abs().mean().item():.4f}")
+    if model.dynamics is None:  # DefGS: f_defo's own motion only
+        print(f"{run}: no f_trd (DefGS)")
+    else:
+        head = model.dynamics.head.weight[model.dynamics.slices["acceleration"]]
+        print(f"{run}: acceleration head mean |w| {head.abs().mean().item():.4f}")
     for t in (0.2, 0.4, 0.6, model.handover_time(t_max)):
         means, owner = _parts_at(model, t, t_max, gt, 0.03)
-        p = model.query_dynamics(means, t)
         dt = 2 * model.dt_max
+        defo_later = model.deform(t + dt)["means"]
+        if model.dynamics is None:
+            for part in sorted(set(owner.tolist()) - {0}):
+                m = owner == part
+                print(
+                    f"  t={t:.3f} part {part}: w_defo {_rigid_fit_angular_velocity(means[m], defo_later[m], dt)}"
+                )
+            continue
+        p = model.query_dynamics(means, t)
         later = integrate(means, model.deform(t)["quats"], p, dt, model.dt_max)[0]
         a_fd = (model.query_dynamics(later, t + dt).velocity - p.velocity) / dt
-        defo_later = model.deform(t + dt)["means"]
         for part in sorted(set(owner.tolist()) - {0}):
             m = owner == part
             v = particle_velocity(means[m], p.velocity[m], p.angular_velocity[m])

@@ -140,6 +140,10 @@ OPTIONS = {
     "20k dynamic": {"dynamic_iterations": 20_000},
     "12k dynamic": {"dynamic_iterations": 12_000},
     "f_defo time L=3": {"deformation__time_frequencies": 3},
+    "growth in 32": {"dynamic__time_growth_stages": 32},
+    "growth in 60": {"dynamic__time_growth_stages": 60},
+    "f_defo alone 3800": {"dynamic__warmup_deformation_steps": 3800},
+    "refine until 8000": {"densify__refine_stop": 8000},
 }
 
 

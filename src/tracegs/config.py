@@ -68,9 +68,12 @@ class DynamicStageConfig:
     (METHOD.md; the physics then starts from a detached x_t'), or f_defo(t), the rendered time (one
     more field evaluation per step)."""
     time_growth_fraction: float = 0.19
-    """The sampled time range grows in eighths of the training span over this fraction of the dynamic
+    """The sampled time range grows in ``time_growth_stages`` steps over this fraction of the dynamic
     stage (the paper: ~7000 of 37000 iterations). A fraction, so that the late times of a shortened
     run are not introduced when the field learning rate has already decayed."""
+    time_growth_stages: int = 8
+    """Number of equal steps in which the sampled time range grows (METHOD.md: eighths). Each step
+    opens times that f_defo has to reach from the motion it learned before them."""
     acceleration_consistency: float = 0.0
     """Weight of a loss that teaches f_trd's accelerations the time derivative of its own velocity
     field: f_trd is queried again at (x_t, t) and its velocities compared with those the accelerations

@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import math
 
 import pytest
 import torch
@@ -177,6 +178,29 @@ def test_rotation_consistency_trains_only_the_dynamics_field(tiny_scene, tmp_pat
     reordered = means.flip(0)  # densification that keeps the count: a new parameter, new neighbours
     model.gaussians["means"] = torch.nn.Parameter(reordered)
     torch.testing.assert_close(model.canonical_neighbours(), neighbours.flip(0).neg().add(len(means) - 1))
+
+
+@pytest.mark.parametrize("stages", [1, 4, 8])
+def test_time_range_grows_in_equal_stages(tiny_scene, tmp_path, stages):
+    """Over the first ``time_growth_fraction`` of the dynamic stage the sampled range ends at
+    t_max * k / stages in stage k (k = 1..stages), and sampled views never lie beyond it."""
+    trainer = Trainer(
+        _cfg(
+            tiny_scene,
+            tmp_path / "run",
+            dynamic_iterations=1000,
+            dynamic__time_growth_fraction=0.4,
+            dynamic__time_growth_stages=stages,
+        ),
+        progress=False,
+    )
+    t_max, per_stage = trainer.t_max, 400 / stages
+    for k in range(1, stages + 1):
+        for dyn_step in (math.ceil((k - 1) * per_stage), math.ceil(k * per_stage) - 1):
+            assert trainer.time_limit(dyn_step) == pytest.approx(t_max * k / stages)
+    assert trainer.time_limit(400) == trainer.time_limit(999) == pytest.approx(t_max)
+    seen = {trainer.data.views[trainer._dynamic_view(0)].time for _ in range(200)}
+    assert max(seen) <= t_max / stages + 1e-9 and min(seen) == 0.0
 
 
 def test_straight_through_gradient_reaches_deformation_field(tiny_scene, tmp_path):

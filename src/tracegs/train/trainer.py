@@ -89,11 +89,17 @@ class Trainer:
         first = [i for i, v in enumerate(self.data.views) if abs(v.time - t0) < 1e-9]
         return first if len(first) >= 3 else list(range(len(self.data)))
 
+    def time_limit(self, dyn_step: int) -> float:
+        """End of the sampled time range at a dynamic step: it grows in ``dynamic.time_growth_stages``
+        equal steps over the first ``dynamic.time_growth_fraction`` of the stage."""
+        growth = self.cfg.dynamic.time_growth_fraction * self.cfg.dynamic_iterations
+        stages = self.cfg.dynamic.time_growth_stages
+        frac = 1.0 if growth <= 0 else min(1.0, (1 + (stages * dyn_step) // growth) / stages)
+        return self.t_max * frac
+
     def _dynamic_view(self, dyn_step: int) -> int:
         """A training image whose time lies in the current (growing) time range."""
-        growth = self.cfg.dynamic.time_growth_fraction * self.cfg.dynamic_iterations
-        frac = 1.0 if growth <= 0 else min(1.0, (1 + (8 * dyn_step) // growth) / 8)
-        limit = self.t_max * frac + 1e-9
+        limit = self.time_limit(dyn_step) + 1e-9
         allowed = [i for i, v in enumerate(self.data.views) if v.time <= limit]
         return random.choice(allowed)
 
