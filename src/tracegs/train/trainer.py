@@ -52,6 +52,8 @@ class Trainer:
 
     def __init__(self, cfg: TrainConfig, progress: bool = True):
         self.cfg, self.progress = cfg, progress
+        if cfg.dynamic.time_growth_stages < 1:
+            raise ValueError(f"dynamic.time_growth_stages must be >= 1, got {cfg.dynamic.time_growth_stages}")
         self.device = resolve_device(cfg.device)
         self.generator = seed_everything(cfg.seed)
         self.run = Path(cfg.run)
