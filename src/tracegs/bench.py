@@ -144,6 +144,7 @@ OPTIONS = {
     "growth in 60": {"dynamic__time_growth_stages": 60},
     "f_defo alone 3800": {"dynamic__warmup_deformation_steps": 3800},
     "refine until 8000": {"densify__refine_stop": 8000},
+    "budget 14k until 8000": {"densify__max_gaussians": 14_000, "densify__refine_stop": 8000},
 }
 
 
