@@ -47,27 +47,20 @@ def report(run: Path) -> None:
         means, owner = _parts_at(model, t, t_max, gt, 0.03)
         dt = 2 * model.dt_max
         defo_later = model.deform(t + dt)["means"]
-        if model.dynamics is None:
-            for part in sorted(set(owner.tolist()) - {0}):
-                m = owner == part
-                print(
-                    f"  t={t:.3f} part {part}: w_defo {_rigid_fit_angular_velocity(means[m], defo_later[m], dt)}"
-                )
-            continue
-        p = model.query_dynamics(means, t)
-        later = integrate(means, model.deform(t)["quats"], p, dt, model.dt_max)[0]
-        a_fd = (model.query_dynamics(later, t + dt).velocity - p.velocity) / dt
+        if model.dynamics is not None:
+            p = model.query_dynamics(means, t)
+            later = integrate(means, model.deform(t)["quats"], p, dt, model.dt_max)[0]
+            a_fd = (model.query_dynamics(later, t + dt).velocity - p.velocity) / dt
         for part in sorted(set(owner.tolist()) - {0}):
             m = owner == part
-            v = particle_velocity(means[m], p.velocity[m], p.angular_velocity[m])
-            a_bar, w, eps = (
-                _median(x[m]) for x in (p.acceleration, p.angular_velocity, p.angular_acceleration)
-            )
-            w_defo = _rigid_fit_angular_velocity(means[m], defo_later[m], dt)
-            print(
-                f"  t={t:.3f} part {part}: v {_median(v)} a_bar {a_bar} a_fd {_median(a_fd[m])} w {w} eps {eps}"
-                f" w_defo {w_defo}"
-            )
+            line = f"  t={t:.3f} part {part}:"
+            if model.dynamics is not None:
+                v = particle_velocity(means[m], p.velocity[m], p.angular_velocity[m])
+                a_bar, w, eps = (
+                    _median(x[m]) for x in (p.acceleration, p.angular_velocity, p.angular_acceleration)
+                )
+                line += f" v {_median(v)} a_bar {a_bar} a_fd {_median(a_fd[m])} w {w} eps {eps}"
+            print(f"{line} w_defo {_rigid_fit_angular_velocity(means[m], defo_later[m], dt)}")
 
 
 if __name__ == "__main__":
