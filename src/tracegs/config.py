@@ -143,7 +143,12 @@ class TrainConfig:
     init_points: int = 100_000
     """Random initial Gaussians in the scene bounds (when the dataset has no points)."""
     init_extent: float = 1.3
-    """Half-size of the random-init cube when the dataset gives no aabb (Blender scenes: 1.3)."""
+    """Half-size of the random-init cube when the dataset gives no aabb, for cameras 4.03 units from
+    the point they look at (the Blender / D-NeRF layout); scaled with that distance (``init_box``)."""
+    init_box: Literal["cameras", "origin"] = "cameras"
+    """Where the random-init cube lies when the dataset gives no aabb or points: ``cameras`` centres
+    it on the point the cameras look at and scales it with their distance (any capture's scale);
+    ``origin``: +/- ``init_extent`` around the origin. Forward-facing captures fall back to ``origin``."""
     sh_degree: int = 3
     """Maximum spherical-harmonics degree."""
     sh_degree_interval: int = 1000

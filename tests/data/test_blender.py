@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from tracegs.data.blender import DatasetError, load_image, load_scene
-from tracegs.data.cameras import look_at_viewmat, opengl_c2w_to_viewmat
+from tracegs.data.cameras import focus_point, look_at_viewmat, opengl_c2w_to_viewmat
 
 
 def test_parses_tiny_scene(tiny_scene):
@@ -87,3 +87,35 @@ def test_corrupt_image_names_file(tiny_scene):
     scene.frames[1].image_path.write_bytes(b"not a png")
     with pytest.raises(DatasetError, match=str(scene.frames[1].image_path.name)):
         load_image(scene.frames[1])
+
+
+def _ring(center, radius, n=8, elevation=0.5):
+    """World-to-camera matrices of ``n`` cameras on a ring around ``center``, all looking at it."""
+    center = torch.as_tensor(center, dtype=torch.float32)
+    eyes = [
+        center
+        + radius
+        * torch.tensor(
+            [math.cos(a) * math.cos(elevation), math.sin(a) * math.cos(elevation), math.sin(elevation)]
+        )
+        for a in (2 * math.pi * k / n for k in range(n))
+    ]
+    return torch.stack([look_at_viewmat(eye, center) for eye in eyes])
+
+
+def test_focus_point_is_where_the_cameras_look():
+    point = focus_point(_ring((2.0, -1.0, 5.0), 30.0))
+    assert point is not None and torch.allclose(
+        point, torch.tensor([2.0, -1.0, 5.0], dtype=torch.float64), atol=1e-4
+    )
+
+
+def test_focus_point_refuses_parallel_or_backward_axes():
+    eyes = [(x, 0.0, 0.0) for x in (-1.0, 0.0, 1.0)]
+    forward = torch.stack([look_at_viewmat(e, (e[0], 10.0, 0.0)) for e in eyes])  # forward-facing capture
+    assert focus_point(forward) is None
+    inward = _ring((0.0, 0.0, 0.0), 4.0)
+    outward = inward.clone()
+    outward[:, 2, :] *= -1  # flip each camera's forward axis (and its y axis, to stay a rotation)
+    outward[:, 1, :] *= -1
+    assert focus_point(outward) is None

@@ -351,3 +351,35 @@ def test_hold_gaussians_trains_the_fields_alone_then_everything(tiny_scene, tmp_
     trainer.train_step()
     after, _ = snapshot()
     assert any(not torch.equal(held[k], after[k]) for k in held)
+
+
+def _move_cameras(scene, scale, offset):
+    """Rewrite a scene's camera centres as ``scale * c + offset`` (the same views of a scaled, moved world)."""
+    for path in scene.glob("transforms_*.json"):
+        meta = json.loads(path.read_text())
+        for frame in meta["frames"]:
+            for i in range(3):
+                frame["transform_matrix"][i][3] = scale * frame["transform_matrix"][i][3] + offset[i]
+        path.write_text(json.dumps(meta))
+
+
+@pytest.mark.parametrize("scale, offset", [(1.0, (0.0, 0.0, 0.0)), (10.0, (50.0, -20.0, 3.0))])
+def test_initial_box_follows_the_cameras(tiny_scene, tmp_path, scale, offset):
+    # The tiny scene's cameras sit sqrt(3^2 + 1.5^2) from the origin and look at it; the random-init
+    # cube must be centred where they look and scale with them, whatever the capture's units.
+    _move_cameras(tiny_scene, scale, offset)
+    trainer = Trainer(_cfg(tiny_scene, tmp_path / "run"), progress=False)
+    half = 1.3 * scale * math.hypot(3.0, 1.5) / 4.031
+    expected = torch.tensor(offset) + torch.tensor([[-half] * 3, [half] * 3])
+    assert torch.allclose(trainer.aabb, expected, rtol=2e-3, atol=2e-3 * scale)
+    means = trainer.model.gaussians["means"]
+    assert (means >= trainer.aabb[0]).all() and (means <= trainer.aabb[1]).all()
+    fixed = Trainer(_cfg(tiny_scene, tmp_path / "fixed", init_box="origin"), progress=False)
+    assert torch.equal(fixed.aabb, torch.tensor([[-1.3] * 3, [1.3] * 3]))
+
+
+def test_initial_box_of_the_blender_layout_is_the_usual_cube(tiny_scene, tmp_path):
+    # Cameras 4.031 from the origin (Blender / D-NeRF): exactly the +/- 1.3 cube of 3DGS's random init.
+    _move_cameras(tiny_scene, 4.031 / math.hypot(3.0, 1.5), (0.0, 0.0, 0.0))
+    trainer = Trainer(_cfg(tiny_scene, tmp_path / "run"), progress=False)
+    assert torch.equal(trainer.aabb, torch.tensor([[-1.3] * 3, [1.3] * 3]))

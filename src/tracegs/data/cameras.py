@@ -38,6 +38,26 @@ class Camera:
         return Camera(self.viewmat, K, round(self.width * factor), round(self.height * factor))
 
 
+def focus_point(viewmats: torch.Tensor, min_spread: float = 0.02) -> torch.Tensor | None:
+    """The point [3] closest, in least squares, to the optical axes of cameras ``viewmats`` [C, 4, 4]
+    (OpenCV world-to-camera): where an inward-facing capture looks.
+
+    None when the axes are too close to parallel to meet (the smallest eigenvalue of the mean
+    projector onto the axes' normal planes below ``min_spread``: a forward-facing capture) or when the
+    point lies behind most of the cameras.
+    """
+    R, t = viewmats[:, :3, :3].double(), viewmats[:, :3, 3].double()
+    centers = -(R.transpose(1, 2) @ t[..., None])[..., 0]
+    forward = R[:, 2]  # the camera's +z axis in world coordinates
+    normal = torch.eye(3, dtype=torch.float64) - forward[:, :, None] * forward[:, None, :]
+    A, b = normal.mean(0), (normal @ centers[..., None]).mean(0)[:, 0]
+    if float(torch.linalg.eigvalsh(A)[0]) < min_spread:
+        return None
+    point = torch.linalg.solve(A, b)
+    in_front = ((point - centers) * forward).sum(-1) > 0
+    return point if in_front.double().mean() > 0.5 else None
+
+
 def opengl_c2w_to_viewmat(c2w: torch.Tensor) -> torch.Tensor:
     """Blender/OpenGL camera-to-world [4, 4] -> OpenCV world-to-camera [4, 4]."""
     c2w = c2w.clone().to(torch.float64)

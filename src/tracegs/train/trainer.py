@@ -19,6 +19,7 @@ from tqdm import tqdm
 
 from ..config import TrainConfig, config_from_dict, config_to_dict, load_config, save_config
 from ..data.blender import load_scene
+from ..data.cameras import focus_point
 from ..data.dataset import ViewDataset, frame_interval
 from ..models.gaussians import create_gaussians, empty_like_params, random_gaussians
 from ..models.trace import TraceModel
@@ -28,12 +29,30 @@ from .losses import photometric_loss
 from .optim import field_lrs, field_optimizer, gaussian_optimizers, means_lr, set_group_lrs, set_lr
 from .strategy import DefaultStrategy, scene_extent_from_cameras
 
+# Distance from the Blender / D-NeRF synthetic cameras to the point they look at (the origin), for
+# which ``init_extent`` (1.3, the random-init cube of 3DGS and Deformable 3DGS) is made.
+BLENDER_CAMERA_DISTANCE = 4.031
+
 
 def default_aabb(cfg: TrainConfig, data: ViewDataset) -> torch.Tensor:
+    """The box of the random initial Gaussians (and of TRACE_4dgs's HexPlane): the dataset's ``aabb``
+    if it gives one, else (``init_box = "cameras"``) a cube around the point the cameras look at,
+    sized to their distance from it, else the cube of half-size ``init_extent`` around the origin.
+
+    The camera-based cube is rounded (centre to 0.1% of the camera distance, half-size to three
+    significant digits), so the Blender layout gives exactly the origin's +/- 1.3 cube.
+    """
     if data.scene.aabb is not None:
         return data.scene.aabb.float()
-    e = cfg.init_extent
-    return torch.tensor([[-e, -e, -e], [e, e, e]], dtype=torch.float32)
+    center, half = torch.zeros(3, dtype=torch.float64), cfg.init_extent
+    viewmats = torch.stack([v.camera.viewmat.cpu() for v in data.views])
+    point = focus_point(viewmats) if cfg.init_box == "cameras" else None
+    if point is not None:
+        distance = float((data.camera_centers().double() - point).norm(dim=-1).median())
+        step = 1e-3 * distance
+        center = torch.round(point / step) * step + 0.0  # + 0.0 turns -0.0 into 0.0
+        half = float(f"{cfg.init_extent * distance / BLENDER_CAMERA_DISTANCE:.3g}")
+    return torch.stack([center - half, center + half]).float()
 
 
 def initial_gaussians(cfg: TrainConfig, aabb: torch.Tensor, device) -> torch.nn.ParameterDict:
