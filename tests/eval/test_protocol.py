@@ -42,6 +42,26 @@ def test_validation_future_holds_only_later_training_frames(trained_run):
     assert sorted(f.time for _, f in splits["interpolation"]) == [0.0, 0.25, 0.5]
 
 
+def test_held_out_frames_in_the_training_span_count_as_interpolation(tmp_path):
+    # D-NeRF layout: no val split, and a test split spread over the whole time range. Its frames at
+    # t <= t_train_end are interpolation; the validation future never looks at a test frame.
+    scene = write_tiny_scene(tmp_path / "scene", n_cams=3, n_times=5, size=16)
+    val, test = (json.loads((scene / f"transforms_{s}.json").read_text()) for s in ("val", "test"))
+    test["frames"] += val["frames"]
+    (scene / "transforms_test.json").write_text(json.dumps(test))
+    (scene / "transforms_val.json").unlink()
+    splits = split_frames(scene, t_train_end=0.75)
+    assert sorted((f.camera_id, f.time) for f in splits["interpolation"]) == [
+        (2, 0.0),
+        (2, 0.25),
+        (2, 0.5),
+        (2, 0.75),
+    ]
+    assert len(splits["extrapolation"]) == 3
+    validation = split_frames(scene, t_train_end=0.5, future_end=0.75)
+    assert validation["interpolation"] == [] and {f.time for f in validation["extrapolation"]} == {0.75}
+
+
 def test_eval_json_has_every_field(trained_run, tmp_path, capsys):
     pytest.importorskip("tracegs.eval.lpips")
     _, run = trained_run

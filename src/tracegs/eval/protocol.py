@@ -1,7 +1,7 @@
 """The evaluation protocol of TRACE / NVFi: interpolation and extrapolation splits, and their metrics.
 
-interpolation = held-out (val) cameras at t <= t_train_end; extrapolation = every camera of every
-split at t > t_train_end. Checkpoints and settings are never chosen on these frames.
+interpolation = held-out (val and test) frames at t <= t_train_end; extrapolation = every camera of
+every split at t > t_train_end. Checkpoints and settings are never chosen on these frames.
 
 For choosing settings there is a validation future instead: train on an earlier part of the training
 span (``t_train_end`` set before the scene's), and score the training cameras' frames between that
@@ -29,8 +29,12 @@ def split_frames(
     with_cameras: bool = False,
     future_end: float | None = None,
 ) -> dict[str, list[Frame]] | dict[str, list[tuple[str, Frame]]]:
-    """Frames of the interpolation and extrapolation splits (deduplicated by image path); with
-    ``with_cameras``, ``(cameras, frame)`` pairs where ``cameras`` says whether a training camera
+    """Frames of the interpolation and extrapolation splits (deduplicated by image path).
+
+    Interpolation: the held-out frames (``val`` and ``test`` splits) at t <= t_train_end, so a dataset
+    without a ``val`` split (or with test frames inside the training span, as D-NeRF's) is scored on
+    all of them; with ``future_end`` (the validation future) the ``val`` split alone, so that choosing
+    settings never looks at a test frame. With ``with_cameras``, ``(cameras, frame)`` pairs where ``cameras`` says whether a training camera
     took the frame ("train_cameras") or not ("new_cameras"). With ``future_end`` the extrapolation
     split is the validation future: frames of the train split with t_train_end < t <= future_end."""
     interpolation, extrapolation, seen, train_cameras = [], [], set(), set()
@@ -46,7 +50,7 @@ def split_frames(
             if f.time > t_train_end + 1e-9:
                 if future_end is None or (split == "train" and f.time <= future_end + 1e-9):
                     extrapolation.append((cameras, f))
-            elif split == "val":
+            elif split == "val" or (split == "test" and future_end is None):
                 interpolation.append((cameras, f))
     out = {"interpolation": interpolation, "extrapolation": extrapolation}
     return out if with_cameras else {k: [f for _, f in v] for k, v in out.items()}
