@@ -167,6 +167,18 @@ def scene_folder(out: Path, scene: str, resolution: int, synthesize_missing: boo
     return data
 
 
+def _same_settings(run: Path, settings: dict) -> bool:
+    """Whether ``run`` was made with ``settings`` (a config dict). Settings added since the run was
+    made read as their defaults, as when a run resumes (``Trainer``); one since removed makes it
+    differ."""
+    from .config import config_to_dict, load_config
+
+    try:
+        return config_to_dict(load_config(run / "config.json")) == settings
+    except (FileNotFoundError, ValueError):
+        return False
+
+
 def _set_aside(run: Path) -> None:
     """Rename a benchmark run folder made with other settings to ``RUN.previous`` (one kept)."""
     previous = run.with_name(run.name + ".previous")
@@ -239,9 +251,7 @@ def run_variant_table(
             run = Path(out) / "runs" / f"{Path(scene).name}_{slug}_{preset}{suffix}"
             cfg = apply_overrides(make_config(preset, data=data, run=run), {**scene_overrides, **variant})
             done = run / "eval.json"
-            same = (run / "config.json").is_file() and json.loads(
-                (run / "config.json").read_text()
-            ) == config_to_dict(cfg)
+            same = _same_settings(run, config_to_dict(cfg))
             if not (done.is_file() and same) and not train:
                 print(f"{run}: no finished run with these settings; row skipped")
                 continue

@@ -40,6 +40,18 @@ def test_rows_reuse_and_share_runs(tmp_path, monkeypatch):
     assert f"| scene | dt=2 | {rows[0]['interp_psnr']:.3f} |" in section
     assert "the methods table's TRACE row" in section
 
+    # a run made before a setting existed reads it as its default and is still the same run; a run
+    # made with another value of a setting is not
+    config_path = out / "runs" / "scene_TRACE_tiny" / "config.json"
+    saved = json.loads(config_path.read_text())
+    del saved["init_box"]
+    config_path.write_text(json.dumps(saved))
+    again = run_variant_table("methods", {"TRACE": METHODS["TRACE"]}, out, scenes, "tiny", train=False)
+    assert [r["extrap_psnr"] for r in again] == [rows[0]["extrap_psnr"]]
+    saved["init_box"] = "origin"
+    config_path.write_text(json.dumps(saved))
+    assert run_variant_table("methods", {"TRACE": METHODS["TRACE"]}, out, scenes, "tiny", train=False) == []
+
 
 def test_merge_records_keeps_other_rows_and_replaces_same_key(tmp_path):
     from tracegs.bench_report import merge_records
