@@ -34,9 +34,10 @@ def split_frames(
     Interpolation: the held-out frames (``val`` and ``test`` splits) at t <= t_train_end, so a dataset
     without a ``val`` split (or with test frames inside the training span, as D-NeRF's) is scored on
     all of them; with ``future_end`` (the validation future) the ``val`` split alone, so that choosing
-    settings never looks at a test frame. With ``with_cameras``, ``(cameras, frame)`` pairs where ``cameras`` says whether a training camera
-    took the frame ("train_cameras") or not ("new_cameras"). With ``future_end`` the extrapolation
-    split is the validation future: frames of the train split with t_train_end < t <= future_end."""
+    settings never looks at a test frame. With ``future_end`` the extrapolation split is the
+    validation future: frames of the train split with t_train_end < t <= future_end. With
+    ``with_cameras``, ``(cameras, frame)`` pairs where ``cameras`` says whether a training camera
+    took the frame ("train_cameras") or not ("new_cameras")."""
     interpolation, extrapolation, seen, train_cameras = [], [], set(), set()
     for split in available_splits(data):
         frames = load_scene(data, split, downscale).frames
