@@ -167,14 +167,13 @@ def scene_folder(out: Path, scene: str, resolution: int, synthesize_missing: boo
     return data
 
 
-def _same_settings(run: Path, settings: dict) -> bool:
-    """Whether ``run`` was made with ``settings`` (a config dict). Settings added since the run was
-    made read as their defaults, as when a run resumes (``Trainer``); one since removed makes it
-    differ."""
-    from .config import config_to_dict, load_config
+def _same_settings(run: Path, cfg) -> bool:
+    """Whether ``run`` was made with the settings of ``cfg``: the question a resume asks
+    (``train.trainer.changed_settings``; settings added since read as their defaults)."""
+    from .train.trainer import changed_settings
 
     try:
-        return config_to_dict(load_config(run / "config.json")) == settings
+        return not changed_settings(json.loads((run / "config.json").read_text()), cfg)
     except (FileNotFoundError, ValueError):
         return False
 
@@ -232,7 +231,7 @@ def run_variant_table(
     A row with TRACE's settings in another table (the ablation "dt=2") is stored as the TRACE record
     of ``methods_table`` and shown from there, so one run is never recorded twice.
     """
-    from .config import apply_overrides, config_to_dict
+    from .config import apply_overrides
     from .eval.protocol import evaluate_run
     from .train.trainer import Trainer
 
@@ -251,7 +250,7 @@ def run_variant_table(
             run = Path(out) / "runs" / f"{Path(scene).name}_{slug}_{preset}{suffix}"
             cfg = apply_overrides(make_config(preset, data=data, run=run), {**scene_overrides, **variant})
             done = run / "eval.json"
-            same = _same_settings(run, config_to_dict(cfg))
+            same = _same_settings(run, cfg)
             if not (done.is_file() and same) and not train:
                 print(f"{run}: no finished run with these settings; row skipped")
                 continue

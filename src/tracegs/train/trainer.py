@@ -286,13 +286,10 @@ class Trainer:
 
     def _resume(self, path: Path) -> None:
         ckpt = torch.load(path, map_location=self.device, weights_only=False)
-        saved = ckpt.get("config", {})
-        if saved:  # settings added since the checkpoint was written read as their defaults
-            try:
-                saved = config_to_dict(config_from_dict(TrainConfig, saved))
-            except ValueError as err:
-                raise ValueError(f"{path}: {err}; train into a new --run folder") from err
-        changed = _changed_settings(saved, config_to_dict(self.cfg))
+        try:
+            changed = changed_settings(ckpt.get("config", {}), self.cfg)
+        except ValueError as err:
+            raise ValueError(f"{path}: {err}; train into a new --run folder") from err
         if changed:
             raise ValueError(
                 f"{path}: the checkpoint was trained with other settings ({', '.join(changed)}); "
@@ -318,6 +315,15 @@ class Trainer:
 
 # Settings that may change when a killed run is resumed: where things are, not what is trained.
 RESUMABLE_CHANGES = frozenset({"run", "data", "device", "backend", "checkpoint_every", "log_every"})
+
+
+def changed_settings(saved: dict, cfg: TrainConfig) -> list[str]:
+    """Dotted names of the settings in which a run's saved config differs from ``cfg`` (the resumable
+    ones excepted): empty when the run can go on, or be reused, with ``cfg``. Settings added since the
+    run was saved read as their defaults; one this code no longer knows raises ValueError."""
+    if saved:
+        saved = config_to_dict(config_from_dict(TrainConfig, saved))
+    return _changed_settings(saved, config_to_dict(cfg))
 
 
 def _changed_settings(saved: dict, current: dict, prefix: str = "") -> list[str]:
