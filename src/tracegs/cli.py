@@ -123,6 +123,8 @@ class Bench:
     The ablations also take our options beside the paper's switches (e.g. "skip static")."""
     report_only: bool = False
     """Train nothing: tabulate the finished runs of these scenes and variants, skip the others."""
+    device: str = "auto"
+    """auto, cpu or cuda: where `raster` renders and `methods` / `ablations` train (auto: CUDA if present)."""
     validation: float | None = None
     """Choose settings without the test splits: train on this fraction of the training span (e.g. 0.8)
     and score the training cameras' later frames (methods and ablations)."""
@@ -199,7 +201,7 @@ def main(argv: list[str] | None = None) -> None:
         if a.what == "raster":
             from .render.bench import run_raster_bench
 
-            records = run_raster_bench(json_path=a.json)
+            records = run_raster_bench(json_path=a.json, device=a.device)
         else:
             from .bench import ABLATIONS, METHODS, OPTIONS, run_field_bench, run_variant_table
 
@@ -212,9 +214,9 @@ def main(argv: list[str] | None = None) -> None:
                 if unknown:
                     raise SystemExit(f"unknown variants {sorted(unknown)}; choose from {list(known)}")
                 variants = {k: v for k, v in known.items() if k in a.variants} if a.variants else table
-                overrides = (
-                    {} if a.dynamic_iterations is None else {"dynamic_iterations": a.dynamic_iterations}
-                )
+                overrides = {} if a.device == "auto" else {"device": a.device}
+                if a.dynamic_iterations is not None:
+                    overrides["dynamic_iterations"] = a.dynamic_iterations
                 records = run_variant_table(
                     a.what,
                     variants,

@@ -49,8 +49,8 @@ def render_with_grads(scene: dict, backend: str, *, background=None, seed: int =
     out = rasterize(**leaves, **rest, backend=backend, background=background)
     g = torch.Generator().manual_seed(seed)
     H, W = out.image.shape[:2]
-    w_img = torch.rand(H, W, 3, generator=g, dtype=out.image.dtype)
-    w_alpha = torch.rand(H, W, 1, generator=g, dtype=out.image.dtype)
+    w_img = torch.rand(H, W, 3, generator=g, dtype=out.image.dtype).to(out.image.device)
+    w_alpha = torch.rand(H, W, 1, generator=g, dtype=out.image.dtype).to(out.image.device)
     loss = (out.image * w_img).sum() + 0.5 * (out.alpha * w_alpha).sum() + 0.1 * out.depth.mean()
     loss.backward()
     res = {"image": out.image.detach(), "alpha": out.alpha.detach(), "depth": out.depth.detach()}

@@ -79,8 +79,9 @@ def test_resume_refuses_a_checkpoint_trained_with_other_settings(tiny_scene, tmp
     trainer.save()
     with pytest.raises(ValueError, match=r"checkpoint\.pt.*dynamic\.dt_frames"):
         Trainer(apply_overrides(cfg, {"dynamic__dt_frames": 3.0}), progress=False)
-    # where things are written is not a training setting
+    # where things are written is not a training setting, nor is the machine's arithmetic (bf16)
     assert Trainer(apply_overrides(cfg, {"checkpoint_every": 7, "log_every": 3}), progress=False).step == 1
+    assert Trainer(apply_overrides(cfg, {"bf16": not cfg.bf16}), progress=False).step == 1
     # a checkpoint from before a setting existed resumes when the setting keeps its default
     ckpt = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)
     del ckpt["config"]["dynamic"]["skip_static"]
@@ -383,3 +384,20 @@ def test_initial_box_of_the_blender_layout_is_the_usual_cube(tiny_scene, tmp_pat
     _move_cameras(tiny_scene, 4.031 / math.hypot(3.0, 1.5), (0.0, 0.0, 0.0))
     trainer = Trainer(_cfg(tiny_scene, tmp_path / "run"), progress=False)
     assert torch.equal(trainer.aabb, torch.tensor([[-1.3] * 3, [1.3] * 3]))
+
+
+@pytest.mark.parametrize("amx", [False, True])
+def test_a_bf16_run_is_rendered_in_fp32_on_cpus_without_amx(tiny_scene, tmp_path, monkeypatch, amx):
+    import tracegs.train.trainer as trainer
+
+    cfg = _cfg(tiny_scene, tmp_path / "run", bf16=True)
+    Trainer(cfg, progress=False).train()
+    monkeypatch.setattr(trainer, "cpu_has_amx_bf16", lambda: amx)
+    model, loaded, meta = load_run(tmp_path / "run", device="cpu")
+    assert loaded.bf16 and model.bf16 == amx
+    with torch.no_grad():  # fields that move the Gaussians (the heads start at zero)
+        for param in model.field_parameters():
+            param.add_(0.05 * torch.randn_like(param))
+    means = model.deform(0.5)["means"]
+    model.bf16 = False
+    assert torch.equal(means, model.deform(0.5)["means"]) != amx

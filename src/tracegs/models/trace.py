@@ -34,6 +34,8 @@ class TraceModel(nn.Module):
                 "set --dynamic.skip-static 0 with it"
             )
         self.cfg = cfg
+        self.bf16 = cfg.bf16
+        """bf16 autocast of the fields on CPU; ``load_run`` turns it off on CPUs without AMX."""
         self.gaussians = gaussians
         self.register_buffer("aabb", aabb.clone().float())
         self.register_buffer("frame_interval", torch.tensor(float(frame_interval)))
@@ -78,7 +80,7 @@ class TraceModel(nn.Module):
 
     def autocast(self):
         """bf16 autocast for the fields on CPU when configured (AMX makes the MLPs ~3x faster)."""
-        if self.cfg.bf16 and self.aabb.device.type == "cpu":
+        if self.bf16 and self.aabb.device.type == "cpu":
             return torch.autocast("cpu", dtype=torch.bfloat16)
         return contextlib.nullcontext()
 

@@ -28,6 +28,7 @@ import torch
 from torch import Tensor
 
 from ..bench_report import machine_description, markdown_table, update_section
+from ..utils import resolve_device
 from .rendering import available_backends, rasterize
 from .sh import num_sh_bases
 
@@ -137,11 +138,36 @@ class _PeakMemory:
         self.mb = self.peak - self.base
 
 
+def _sync(device: torch.device) -> None:
+    """Wait for queued CUDA kernels, so that a timer measures their run and not their launch."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+class _PeakCudaMemory:
+    """Peak CUDA memory allocated above the start while the block runs (PyTorch's allocator)."""
+
+    def __init__(self, device: torch.device):
+        self.device = device
+
+    def __enter__(self):
+        torch.cuda.synchronize(self.device)
+        torch.cuda.reset_peak_memory_stats(self.device)
+        self.base = torch.cuda.memory_allocated(self.device)
+        return self
+
+    def __exit__(self, *exc):
+        torch.cuda.synchronize(self.device)
+        self.mb = (torch.cuda.max_memory_allocated(self.device) - self.base) / 2**20
+
+
 def _time_backend(scene: dict, backend: str, repeats: int, warmup: int) -> dict:
     params = ("means", "quats", "scales", "opacities", "colors")
     leaves = {k: scene[k].clone().requires_grad_(True) for k in params}
     rest = {k: v for k, v in scene.items() if k not in params}
+    device = leaves["means"].device
     weights = torch.rand(scene["height"], scene["width"], 3, generator=torch.Generator().manual_seed(1))
+    weights = weights.to(device)
 
     def fwd():
         with torch.no_grad():
@@ -160,11 +186,13 @@ def _time_backend(scene: dict, backend: str, repeats: int, warmup: int) -> dict:
             fn()
         samples = []
         for _ in range(repeats):
+            _sync(device)
             t0 = time.perf_counter()
             fn()
+            _sync(device)
             samples.append((time.perf_counter() - t0) * 1e3)
         timings[name] = statistics.median(samples)
-    with _PeakMemory() as mem:  # one extra forward + backward, untimed
+    with _PeakCudaMemory(device) if device.type == "cuda" else _PeakMemory() as mem:  # one more, untimed
         fwd_bwd()
     return dict(
         ms_forward=timings["forward"],
@@ -181,20 +209,25 @@ def run_raster_bench(
     repeats: int = 7,
     backends: list[str] | None = None,
     update_docs: bool = True,
+    device: str = "cpu",
 ) -> list[dict]:
     """Time forward and forward + backward of every backend on every (width, count) workload.
 
     Median of ``repeats`` runs after one warm-up; the reference backend gets fewer repeats when it
     is slow (under ~10 s per workload). ``peak_mb`` is the peak resident memory that one forward +
     backward adds on top of what the process held before it (freed heap memory is returned to
-    the OS first, glibc only; sampled every ms). Returns one record per backend and workload.
+    the OS first, glibc only; sampled every ms); on CUDA, the peak that PyTorch's allocator adds.
+    ``device``: where the Gaussians live ('auto', 'cpu' or 'cuda'); each device has its own table
+    in docs/BENCHMARKS.md. Returns one record per backend and workload.
     """
-    backends = list(backends) if backends is not None else available_backends("cpu")
+    device = resolve_device(device)
+    backends = list(backends) if backends is not None else available_backends(device)
     records = []
     for width in widths:
         height = width * 3 // 4
         for n in counts:
             scene = random_scene(n, width, height, seed=0)
+            scene = {k: v.to(device) if torch.is_tensor(v) else v for k, v in scene.items()}
             for backend in backends:
                 reps = repeats
                 if backend == "reference":
@@ -202,7 +235,7 @@ def run_raster_bench(
                     _time_backend(scene, backend, repeats=1, warmup=0)
                     once = time.perf_counter() - t0
                     reps = max(1, min(repeats, math.floor(10.0 / max(once, 1e-3))))
-                rec = dict(backend=backend, width=width, height=height, gaussians=n)
+                rec = dict(backend=backend, device=device.type, width=width, height=height, gaussians=n)
                 rec.update(
                     _time_backend(scene, backend, repeats=reps, warmup=1 if backend != "reference" else 0)
                 )
@@ -220,11 +253,13 @@ def run_raster_bench(
             json.dumps({"machine": machine_description(), "records": records}, indent=2)
         )
     if update_docs:
-        update_section("raster", _markdown(records))
+        update_section("raster" if device.type == "cpu" else f"raster-{device.type}", _markdown(records))
     return records
 
 
-def _markdown(records: list[dict]) -> str:
+def _markdown(records: list[dict], machine: str | None = None) -> str:
+    """The rasteriser table; ``machine`` names where the records were measured (default: here)."""
+    on_cuda = any(r.get("device") == "cuda" for r in records)
     rows = []
     by_key = {(r["backend"], r["width"], r["gaussians"]): r for r in records}
     for r in records:
@@ -239,13 +274,14 @@ def _markdown(records: list[dict]) -> str:
     cols += ["speed-up fwd", "speed-up fwd+bwd"]
     return "\n".join(
         [
-            "## Rasteriser (`tracegs.render.rasterize`)",
+            "## Rasteriser on CUDA" if on_cuda else "## Rasteriser (`tracegs.render.rasterize`)",
             "",
-            f"Machine: {machine_description()}",
+            f"Machine: {machine or machine_description()}",
             "",
-            "Command: `tracegs bench raster --json FILE` (median over repeats after a warm-up; RGB colours; "
-            "speed-up = reference time / backend time at the same workload; peak_mb = peak RSS added by one "
-            "forward + backward).",
+            f"Command: `tracegs bench raster --device {'cuda' if on_cuda else 'cpu'} --json FILE` (median over "
+            "repeats after a warm-up, CUDA synchronised around each; RGB colours; speed-up = reference time "
+            "/ backend time at the same workload; peak_mb = peak memory added by one forward + backward: "
+            + ("PyTorch's CUDA allocator)." if on_cuda else "resident set size)."),
             "",
             markdown_table(rows, cols),
         ]

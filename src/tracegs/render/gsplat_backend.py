@@ -6,14 +6,38 @@ classic (non-antialiased) numerics; see docs/RASTERIZER.md for where the two can
 
 from __future__ import annotations
 
+import functools
+import warnings
+
 from torch import Tensor
 
 
+@functools.cache
 def is_available() -> bool:
-    """Whether ``gsplat`` can be imported (its CUDA kernels build on first use)."""
+    """Whether gsplat's CUDA kernels load. The first call on a machine builds them (a few minutes,
+    cached by PyTorch in ``~/.cache/torch_extensions``); only CUDA runs ask, so CPU runs never do.
+
+    ``import gsplat`` alone is not enough: a wheel without prebuilt kernels imports fine and fails
+    at the first render when the CUDA toolkit is missing or the build breaks. Then this warns once,
+    and ``rasterize(backend="auto")`` renders CUDA tensors with the pure-PyTorch reference backend.
+    """
     try:
         import gsplat  # noqa: F401
     except Exception:  # noqa: BLE001 - a broken install is as good as none
+        return False
+    try:
+        from gsplat.cuda._backend import _C
+    except Exception as err:  # noqa: BLE001 - any build or import failure means no kernels
+        _C, reason = None, f"{type(err).__name__}: {err}"
+    else:
+        reason = "no CUDA toolkit (nvcc) to build them"
+    if _C is None:
+        warnings.warn(
+            f"gsplat is installed but its CUDA kernels could not be loaded ({reason}); CUDA tensors "
+            "are rendered with the slower pure-PyTorch 'reference' backend",
+            RuntimeWarning,
+            stacklevel=2,
+        )
         return False
     return True
 

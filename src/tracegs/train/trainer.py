@@ -17,7 +17,14 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
-from ..config import TrainConfig, config_from_dict, config_to_dict, load_config, save_config
+from ..config import (
+    TrainConfig,
+    config_from_dict,
+    config_to_dict,
+    cpu_has_amx_bf16,
+    load_config,
+    save_config,
+)
 from ..data.blender import load_scene
 from ..data.cameras import focus_point
 from ..data.dataset import ViewDataset, frame_interval
@@ -143,6 +150,13 @@ class Trainer:
     def sh_degree(self) -> int:
         return min(self.cfg.sh_degree, self.step // max(self.cfg.sh_degree_interval, 1))
 
+    def _clock(self) -> float:
+        """Wall time for the per-part timings; on CUDA after the queued kernels finish, so that each
+        part is charged its own GPU time rather than the time to queue it."""
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
+        return time.perf_counter()
+
     def train_step(self) -> dict[str, float]:
         cfg, step = self.cfg, self.step
         static = step < cfg.static_iterations or cfg.method == "static"
@@ -152,7 +166,7 @@ class Trainer:
         if not static:
             set_group_lrs(self.field_opt, field_lrs(cfg.optim, self.extent, dyn_step, cfg.dynamic_iterations))
 
-        t_start = time.perf_counter()
+        t_start = self._clock()
         if static:
             view = self.data[random.choice(self.static_views)]
             g = self.model.gaussians
@@ -168,7 +182,7 @@ class Trainer:
             state, extra_losses = self.model.training_state(
                 self._t_prime(view.time), view.time, physics=physics
             )
-        t_fields = time.perf_counter()
+        t_fields = self._clock()
         if cfg.random_background:
             background = torch.rand(3, device=self.device)
             target = self.data.target(view, background)
@@ -187,9 +201,9 @@ class Trainer:
             for name, value in (extra_losses | self.model.regularization_losses()).items():
                 losses[name] = value
                 losses["loss"] = losses["loss"] + value
-        t_render = time.perf_counter()
+        t_render = self._clock()
         losses["loss"].backward()
-        t_backward = time.perf_counter()
+        t_backward = self._clock()
         hold = not static and dyn_step < cfg.dynamic.hold_gaussians_steps
         for opt in self.optimizers.values():
             if not hold:
@@ -202,7 +216,7 @@ class Trainer:
         report = self.strategy.step_post_backward(
             self.model.gaussians, self.optimizers, self.strategy_state, step, info
         )
-        t_end = time.perf_counter()
+        t_end = self._clock()
         for key, dt in (
             ("fields", t_fields - t_start),
             ("raster_forward", t_render - t_fields),
@@ -229,7 +243,10 @@ class Trainer:
                 if self.step % cfg.log_every == 0 or self.step == total:
                     n = self.model.gaussians["means"].shape[0]
                     bar.set_postfix(loss=f"{stats['loss']:.4f}", gaussians=n)
-                    log.write(json.dumps({"step": self.step, "gaussians": n, **stats}) + "\n")
+                    seconds = round(self.train_seconds, 2)  # training time so far, resumed runs included
+                    log.write(
+                        json.dumps({"step": self.step, "gaussians": n, "seconds": seconds, **stats}) + "\n"
+                    )
                     log.flush()
                 if self.step % cfg.checkpoint_every == 0 and self.step < total:
                     self.save()
@@ -313,8 +330,9 @@ class Trainer:
         random.setstate(ckpt["rng"]["python"])
 
 
-# Settings that may change when a killed run is resumed: where things are, not what is trained.
-RESUMABLE_CHANGES = frozenset({"run", "data", "device", "backend", "checkpoint_every", "log_every"})
+# Settings that may change when a killed run is resumed: where things are and the arithmetic of the
+# machine (bf16 where the CPU has AMX), not what is trained.
+RESUMABLE_CHANGES = frozenset({"run", "data", "device", "backend", "bf16", "checkpoint_every", "log_every"})
 
 
 def changed_settings(saved: dict, cfg: TrainConfig) -> list[str]:
@@ -355,6 +373,9 @@ def load_run(run: str | Path, device: str = "auto") -> tuple[TraceModel, TrainCo
     model = TraceModel(cfg, gaussians, state["aabb"], float(state["frame_interval"])).to(dev)
     model.load_state_dict(state)
     model.eval()
+    # A run trained where bf16 paid (a CPU with AMX, as `cpu-fast` chooses) is rendered in fp32 on
+    # CPUs without AMX: there bf16 is slower, and fp32 gives the fields' values exactly.
+    model.bf16 = cfg.bf16 and cpu_has_amx_bf16()
     model.freeze_threshold = ckpt.get("freeze_threshold")
     model.set_static_mask(ckpt.get("static_mask"))
     if model.freeze_threshold is None and cfg.dynamic.freeze_static_auto and Path(cfg.data).is_dir():
