@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 
-from tracegs.bench import ABLATIONS, METHODS, run_variant_table
+from tracegs.bench import ABLATIONS, METHODS, OPTIONS, run_variant_table
 
 
 def main() -> None:
@@ -28,8 +28,9 @@ def main() -> None:
     ap.add_argument(
         "--ablations",
         nargs="+",
-        choices=sorted(ABLATIONS),
-        help="rows of the ablation table (dnerf-ablations) instead of the method table",
+        choices=sorted(ABLATIONS | OPTIONS),
+        help="rows of the ablation table (dnerf-ablations) instead of the method table; the paper's "
+        'switches or our options (e.g. "12k dynamic")',
     )
     ap.add_argument(
         "--validation",
@@ -44,7 +45,7 @@ def main() -> None:
     if missing:
         raise SystemExit(f"D-NeRF scene(s) not found: {', '.join(missing)}")
     if args.ablations:
-        table, variants = "dnerf-ablations", {a: ABLATIONS[a] for a in args.ablations}
+        table, variants = "dnerf-ablations", {a: (ABLATIONS | OPTIONS)[a] for a in args.ablations}
         rows_flag = "--ablations " + " ".join(f'"{a}"' if " " in a else a for a in args.ablations)
     else:
         table, variants = "dnerf", {m: METHODS[m] for m in args.methods}

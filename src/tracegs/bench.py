@@ -133,6 +133,7 @@ ABLATIONS = {
 # (`--variants "skip static"`); not part of a table's default rows.
 OPTIONS = {
     "skip static": {"dynamic__skip_static": 0.003},
+    "no skip static": {"dynamic__skip_static": 0.0},
     "budget 14k": {"densify__max_gaussians": 14_000},
     "f_defo 4x128": {"deformation__width": 128},
     "hold 2300": {"dynamic__hold_gaussians_steps": 2300},
