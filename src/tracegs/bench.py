@@ -140,6 +140,7 @@ OPTIONS = {
     "growth 0.4": {"dynamic__time_growth_fraction": 0.4},
     "20k dynamic": {"dynamic_iterations": 20_000},
     "12k dynamic": {"dynamic_iterations": 12_000},
+    "24k dynamic": {"dynamic_iterations": 24_000},
     "f_defo time L=3": {"deformation__time_frequencies": 3},
     "growth in 32": {"dynamic__time_growth_stages": 32},
     "growth in 60": {"dynamic__time_growth_stages": 60},
