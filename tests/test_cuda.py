@@ -73,6 +73,7 @@ def test_run_trained_on_cuda_renders_the_same_on_cpu(tiny_scene, tmp_path, switc
     cfg.init_points = 300
     summary = Trainer(apply_overrides(cfg, switch), progress=False).train()
     assert summary["iterations"] == 40
+    assert summary["device"].startswith("cuda") and summary["rasteriser"] in ("gsplat", "reference")
     models = {dev: load_run(run, device=dev) for dev in ("cuda", "cpu")}
     t_max = models["cpu"][2]["t_max"]
     assert models["cuda"][0].gaussians["means"].is_cuda

@@ -23,6 +23,7 @@ def _cfg(scene, run, preset="tiny", **kw):
 def test_every_preset_trains_two_iterations(tiny_scene, tmp_path, preset):
     summary = Trainer(_cfg(tiny_scene, tmp_path / "run", preset), progress=False).train()
     assert summary["iterations"] == 4
+    assert summary["device"] == "cpu" and summary["rasteriser"] in ("native", "reference")
     log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
     assert all(torch.isfinite(torch.tensor(r["loss"])) for r in log)
 

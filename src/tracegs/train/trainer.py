@@ -30,6 +30,7 @@ from ..data.cameras import focus_point
 from ..data.dataset import ViewDataset, frame_interval
 from ..models.gaussians import create_gaussians, empty_like_params, random_gaussians
 from ..models.trace import TraceModel
+from ..render.rendering import resolve_backend
 from ..utils import atomic_torch_save, atomic_write_text, resolve_device, seed_everything
 from .calibrate import choose_freeze_threshold
 from .losses import photometric_loss
@@ -273,6 +274,8 @@ class Trainer:
             "freeze_psnr": self.freeze_psnr,
             "static_fraction": self.static_fraction,
             "ms_per_iteration": {k: round(1000 * v / steps, 2) for k, v in self.timings.items()},
+            "device": str(self.device),
+            "rasteriser": resolve_backend(self.cfg.backend, self.device),
         }
 
     def calibrate(self) -> None:
