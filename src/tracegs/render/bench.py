@@ -28,7 +28,7 @@ import torch
 from torch import Tensor
 
 from ..bench_report import machine_description, markdown_table, update_section
-from ..utils import resolve_device
+from ..utils import resolve_device, synchronize
 from .rendering import available_backends, rasterize
 from .sh import num_sh_bases
 
@@ -138,12 +138,6 @@ class _PeakMemory:
         self.mb = self.peak - self.base
 
 
-def _sync(device: torch.device) -> None:
-    """Wait for queued CUDA kernels, so that a timer measures their run and not their launch."""
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-
-
 class _PeakCudaMemory:
     """Peak CUDA memory allocated above the start while the block runs (PyTorch's allocator)."""
 
@@ -186,10 +180,10 @@ def _time_backend(scene: dict, backend: str, repeats: int, warmup: int) -> dict:
             fn()
         samples = []
         for _ in range(repeats):
-            _sync(device)
+            synchronize(device)
             t0 = time.perf_counter()
             fn()
-            _sync(device)
+            synchronize(device)
             samples.append((time.perf_counter() - t0) * 1e3)
         timings[name] = statistics.median(samples)
     with _PeakCudaMemory(device) if device.type == "cuda" else _PeakMemory() as mem:  # one more, untimed

@@ -31,7 +31,7 @@ from ..data.dataset import ViewDataset, frame_interval
 from ..models.gaussians import create_gaussians, empty_like_params, random_gaussians
 from ..models.trace import TraceModel
 from ..render.rendering import resolve_backend
-from ..utils import atomic_torch_save, atomic_write_text, resolve_device, seed_everything
+from ..utils import atomic_torch_save, atomic_write_text, resolve_device, seed_everything, synchronize
 from .calibrate import choose_freeze_threshold
 from .losses import photometric_loss
 from .optim import field_lrs, field_optimizer, gaussian_optimizers, means_lr, set_group_lrs, set_lr
@@ -154,8 +154,7 @@ class Trainer:
     def _clock(self) -> float:
         """Wall time for the per-part timings; on CUDA after the queued kernels finish, so that each
         part is charged its own GPU time rather than the time to queue it."""
-        if self.device.type == "cuda":
-            torch.cuda.synchronize(self.device)
+        synchronize(self.device)
         return time.perf_counter()
 
     def train_step(self) -> dict[str, float]:
