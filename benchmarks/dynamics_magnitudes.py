@@ -6,7 +6,8 @@ the norm of each of f_trd's named outputs (``DynamicsField.outputs``: v_bar, w, 
 and the v_bar, a_bar they convert to), then the median displacement the physics predicts from t0 to
 ``--future`` beside the one f_defo reconstructed over the same span before t0. A learned motion far larger than the
 reconstructed one is what an extrapolation that flies apart looks like (docs/PHYSICS.md, "Why the
-explicit centre fails on standup").
+explicit centre fails on standup"). Positions and f_trd's outputs are in the fields' frame
+(``TraceModel.set_field_frame``): the world's for Blender-sized scenes.
 Usage: .venv/bin/python benchmarks/dynamics_magnitudes.py RUN [RUN ...] [--future 1.0]
 """
 
@@ -31,7 +32,7 @@ def report(run: Path, future: float) -> None:
     t0 = model.handover_time(t_max)
     print(f"{run}: t_max {t_max:.3f}, handover t0 {t0:.3f}, {model.gaussians['means'].shape[0]} Gaussians")
     for t in (0.25 * t0, 0.5 * t0, t0):
-        means = model.deform(t)["means"]
+        means = model.to_field_frame(model.deform(t)["means"])  # the values as f_trd reads them
         with model.autocast():
             named = {name: v.float() for name, v in model.dynamics.outputs(means, t).items()}
         sizes = {name: _median_norm(v) for name, v in named.items()}

@@ -55,6 +55,23 @@ def write_tiny_scene(
     return root
 
 
+def randomised_model(cfg, n: int = 400):
+    """A TraceModel whose fields move the Gaussians: every field parameter drawn at random (the heads
+    are zero-initialised, which would make comparisons of motion trivial). Gaussians in +/- 1."""
+    import torch
+
+    from tracegs.models.gaussians import random_gaussians
+    from tracegs.models.trace import TraceModel
+
+    torch.manual_seed(0)
+    aabb = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    model = TraceModel(cfg, random_gaussians(n, aabb, cfg.sh_degree), aabb, frame_interval=0.05)
+    with torch.no_grad():
+        for p in model.field_parameters():
+            p.copy_(0.05 * torch.randn_like(p))
+    return model.eval()
+
+
 @pytest.fixture
 def tiny_scene(tmp_path) -> Path:
     return write_tiny_scene(tmp_path / "scene")

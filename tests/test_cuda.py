@@ -11,12 +11,11 @@ import copy
 import pytest
 import torch
 
+from tests.conftest import randomised_model
 from tests.render.render_helpers import PARAMS, hard_scene, native_available, rel_err, render_with_grads
 from tracegs.config import apply_overrides, make_config
 from tracegs.data.dataset import ViewDataset
 from tracegs.export.render import render_at
-from tracegs.models.gaussians import random_gaussians
-from tracegs.models.trace import TraceModel
 from tracegs.train.trainer import Trainer, load_run
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
@@ -36,23 +35,11 @@ def test_reference_backend_on_cuda_matches_cpu():
         assert rel_err(gpu["grad_" + name].cpu(), cpu["grad_" + name]) < 1e-4, name
 
 
-def _randomised_model(cfg, n: int = 400) -> TraceModel:
-    """A model whose fields move the Gaussians: every field parameter drawn at random (the heads are
-    zero-initialised, which would make the comparison trivial)."""
-    torch.manual_seed(0)
-    aabb = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
-    model = TraceModel(cfg, random_gaussians(n, aabb, cfg.sh_degree), aabb, frame_interval=0.05)
-    with torch.no_grad():
-        for p in model.field_parameters():
-            p.copy_(0.05 * torch.randn_like(p))
-    return model.eval()
-
-
 @pytest.mark.parametrize("switch", VARIANTS[::2], ids=VARIANT_IDS[::2])
 def test_fields_move_gaussians_the_same_on_cuda(switch):
     # fp32 on both sides (the presets choose bf16 on CPUs with AMX, which would be the difference)
     cfg = apply_overrides(make_config("tiny", device="cpu", bf16=False), switch)
-    cpu = _randomised_model(cfg)
+    cpu = randomised_model(cfg)
     gpu = copy.deepcopy(cpu).cuda()
     with torch.no_grad():
         for name, (a, b) in {

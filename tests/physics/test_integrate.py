@@ -15,6 +15,7 @@ from tracegs.physics.integrate import (
     local_angular_velocity,
     num_substeps,
     params_at,
+    params_in_world,
     particle_velocity,
     rotation_consistency,
     step,
@@ -288,6 +289,25 @@ def test_equivalent_parametrisation_reproduces_composite_velocity():
         v_bar, w_s = params_at(params, s).velocity, params_at(params, s).angular_velocity
         composite = torch.linalg.cross(w + s * e, P - Pc) + vc + s * ac
         torch.testing.assert_close(particle_velocity(P, v_bar, w_s), composite)
+
+
+@pytest.mark.parametrize("method", ["rk2", "rk4", "euler"])
+@pytest.mark.parametrize("order", [2, 3])
+def test_params_in_world_integrate_to_the_mapped_trajectories(method, order):
+    """Particles integrated in a normalised frame x_n and mapped to x = c + s x_n land where the
+    same particles integrated in the world with ``params_in_world`` land, forward and backward,
+    and turn the same."""
+    xn, v, w, a, e, j, n = (randn(N, 3, seed=s) for s in range(40, 47))
+    q = quat_normalize(randn(N, 4, seed=47))
+    params_n = DynamicsParams(v, w, a, e, *((j, n) if order == 3 else ()))
+    center, scale = torch.tensor([50.0, -20.0, 3.0], dtype=f64), 7.3
+    params_w = params_in_world(params_n, center, scale)
+    torch.testing.assert_close(params_w.angular_velocity, w)
+    for dt in (0.4, -0.25):
+        x_end_n, q_end_n, _ = integrate(xn, q, params_n, dt, 0.05, method)
+        x_end_w, q_end_w, _ = integrate(center + scale * xn, q, params_w, dt, 0.05, method)
+        torch.testing.assert_close(x_end_w, center + scale * x_end_n)
+        torch.testing.assert_close(q_end_w, q_end_n)
 
 
 def test_integrate_field_requeries_the_field():

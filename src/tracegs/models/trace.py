@@ -15,7 +15,13 @@ import math
 import torch
 from torch import nn
 
-from ..physics.integrate import acceleration_consistency, integrate, rotation_consistency, step
+from ..physics.integrate import (
+    acceleration_consistency,
+    integrate,
+    params_in_world,
+    rotation_consistency,
+    step,
+)
 from ..physics.so3 import quat_normalize
 from ..render import rasterize
 from .deformation import apply_deformation, make_deformation_field
@@ -39,6 +45,12 @@ class TraceModel(nn.Module):
         self.gaussians = gaussians
         self.register_buffer("aabb", aabb.clone().float())
         self.register_buffer("frame_interval", torch.tensor(float(frame_interval)))
+        # the frame the fields see positions in (``set_field_frame``); the world's until set
+        self.register_buffer("field_center", torch.zeros(3))
+        self.register_buffer("field_scale", torch.ones(()))
+        self._frame_scale: float | None = None  # the scale as a number; None: the world's frame
+        self.register_load_state_dict_pre_hook(_default_field_frame)
+        self.register_load_state_dict_post_hook(_sync_frame_after_load)
         uses_deformation = cfg.method == "defgs" or (cfg.method == "trace" and cfg.dynamic.use_deformation)
         self.deformation = make_deformation_field(cfg.deformation, aabb) if uses_deformation else None
         self.dynamics = DynamicsField(cfg.dynamics) if cfg.method == "trace" else None
@@ -51,6 +63,24 @@ class TraceModel(nn.Module):
         # the rotation consistency's [N, k] neighbours, the means parameter they were found for and
         # their age in calls (a plain dict: a Parameter held as an attribute would join the module)
         self._neighbours: dict = {"of": None, "index": None, "age": 0}
+
+    # ----- the fields' frame ----------------------------------------------------------------------
+    def set_field_frame(self, center: torch.Tensor, scale: float) -> None:
+        """The fields see positions as ``(x - center) / scale`` and their displacements and
+        velocities are scaled back (``field_frame`` in ``train/trainer.py`` chooses it). Their
+        positional encodings (``sin(2^k pi x)``) and output sizes are made for scenes within a few
+        units of the origin; a capture in other units or far from the origin is brought there."""
+        self.field_center.copy_(torch.as_tensor(center, dtype=torch.float32))
+        self.field_scale.fill_(float(scale))
+        self._sync_frame()
+
+    def _sync_frame(self) -> None:
+        identity = bool((self.field_center == 0).all()) and float(self.field_scale) == 1.0
+        self._frame_scale = None if identity else float(self.field_scale)
+
+    def to_field_frame(self, x: torch.Tensor) -> torch.Tensor:
+        """World positions [N, 3] as the fields see them."""
+        return x if self._frame_scale is None else (x - self.field_center) / self._frame_scale
 
     # ----- fields -----------------------------------------------------------------------------
     def field_parameters(self) -> list[nn.Parameter]:
@@ -76,7 +106,7 @@ class TraceModel(nn.Module):
         """Once, when stage 2 starts: fields with a spatial box (the HexPlane) fit it to the canonical
         Gaussians of stage 1."""
         if hasattr(self.deformation, "fit_bounds"):
-            self.deformation.fit_bounds(self.gaussians["means"])
+            self.deformation.fit_bounds(self.to_field_frame(self.gaussians["means"].detach()))
 
     def autocast(self):
         """bf16 autocast for the fields on CPU when configured (AMX makes the MLPs ~3x faster)."""
@@ -95,7 +125,7 @@ class TraceModel(nn.Module):
             return [{name: g[name] for name in names} for _ in times]
         rows = self._moving_rows()
         canonical = [g[name] if rows is None else g[name][rows] for name in names]
-        x0 = canonical[0].detach() if self.cfg.deformation.detach_input else canonical[0]
+        x0 = self.to_field_frame(canonical[0].detach() if self.cfg.deformation.detach_input else canonical[0])
         n = x0.shape[0]
         if len(times) == 1:  # one time for all points: the field takes it as a bias (``linear_of_parts``)
             x, t = x0, times[0]
@@ -104,6 +134,8 @@ class TraceModel(nn.Module):
             t = torch.tensor(times, dtype=x.dtype, device=x.device).repeat_interleave(n)[:, None]
         with self.autocast():
             dx, dq, dlog_s = self.deformation(x, t)
+        if self._frame_scale is not None:
+            dx = dx.float() * self._frame_scale
         states = []
         for k in range(len(times)):
             block = slice(k * n, (k + 1) * n)
@@ -116,8 +148,11 @@ class TraceModel(nn.Module):
     def query_dynamics(self, means: torch.Tensor, t: float):
         """Eq. 6: the learned physical parameters of every particle at time t (float32)."""
         with self.autocast():
-            params = self.dynamics(means, t)
-        return type(params)(*[None if p is None else p.float() for p in params])
+            params = self.dynamics(self.to_field_frame(means), t)
+        params = type(params)(*[None if p is None else p.float() for p in params])
+        if self._frame_scale is None:
+            return params
+        return params_in_world(params, self.field_center, self._frame_scale)
 
     # ----- Gaussians that stand still (``dynamic.skip_static``) ---------------------------------------
     @torch.no_grad()
@@ -303,3 +338,13 @@ class TraceModel(nn.Module):
             background=background,
             backend=self.cfg.backend,
         )
+
+
+def _default_field_frame(module, state_dict, prefix, *_) -> None:
+    """Checkpoints written before the fields had a frame of their own: the world's."""
+    state_dict.setdefault(prefix + "field_center", torch.zeros(3))
+    state_dict.setdefault(prefix + "field_scale", torch.ones(()))
+
+
+def _sync_frame_after_load(module, _incompatible_keys) -> None:
+    module._sync_frame()

@@ -150,6 +150,25 @@ def acceleration_consistency(params: DynamicsParams, later: DynamicsParams, s: f
     return gap / abs(s)
 
 
+def params_in_world(params: DynamicsParams, center: torch.Tensor, scale: float) -> DynamicsParams:
+    """The same motion in world coordinates ``x = center + scale * x_n``, for ``params`` of particles
+    at normalised positions ``x_n`` (the frame the fields see, ``TraceModel.field_frame``).
+
+    ``dx/ds = scale (v_n + w x x_n) = (scale v_n - w x center) + w x x``: the equivalent velocity
+    becomes ``scale v_n - w x center``, and each higher term the same with its own rotational partner
+    (``scale a_n - eps x center``, ``scale j_n - angular_jerk x center``); rotations are unchanged. Both
+    frames therefore integrate to the same world trajectories, exactly.
+    """
+
+    def world(linear: torch.Tensor | None, angular: torch.Tensor | None) -> torch.Tensor | None:
+        if linear is None:
+            return None
+        return scale * linear - torch.cross(angular, center.to(angular).expand_as(angular), dim=-1)
+
+    v, w, a, e, j, n = params
+    return DynamicsParams(world(v, w), w, world(a, e), e, world(j, n), n)
+
+
 def particle_velocity(
     x: torch.Tensor, velocity: torch.Tensor, angular_velocity: torch.Tensor
 ) -> torch.Tensor:

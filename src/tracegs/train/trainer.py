@@ -53,14 +53,46 @@ def default_aabb(cfg: TrainConfig, data: ViewDataset) -> torch.Tensor:
     if data.scene.aabb is not None:
         return data.scene.aabb.float()
     center, half = torch.zeros(3, dtype=torch.float64), cfg.init_extent
-    viewmats = torch.stack([v.camera.viewmat.cpu() for v in data.views])
-    point = focus_point(viewmats) if cfg.init_box == "cameras" else None
-    if point is not None:
-        distance = float((data.camera_centers().double() - point).norm(dim=-1).median())
-        step = 1e-3 * distance
-        center = torch.round(point / step) * step + 0.0  # + 0.0 turns -0.0 into 0.0
-        half = float(f"{cfg.init_extent * distance / BLENDER_CAMERA_DISTANCE:.3g}")
+    frame = camera_frame(data) if cfg.init_box == "cameras" else None
+    if frame is not None:
+        center, half = frame[0], float(f"{cfg.init_extent * frame[1]:.3g}")
     return torch.stack([center - half, center + half]).float()
+
+
+def camera_frame(data: ViewDataset) -> tuple[torch.Tensor, float] | None:
+    """Where an inward-facing capture looks and its size against the Blender layout: the point
+    [3] (float64) the cameras look at, rounded to 0.1% of their median distance from it, and that
+    distance / 4.031. The Blender and D-NeRF scenes give the origin and 1 (up to rounding). None for
+    a forward-facing capture, whose optical axes do not meet."""
+    viewmats = torch.stack([v.camera.viewmat.cpu() for v in data.views])
+    point = focus_point(viewmats)
+    if point is None:
+        return None
+    distance = float((data.camera_centers().double() - point).norm(dim=-1).median())
+    step = 1e-3 * distance
+    return torch.round(point / step) * step + 0.0, distance / BLENDER_CAMERA_DISTANCE  # + 0.0: no -0.0
+
+
+def field_frame(cfg: TrainConfig, data: ViewDataset) -> tuple[torch.Tensor, float]:
+    """Centre [3] and scale of the frame the fields see positions in (``TraceModel.set_field_frame``).
+
+    ``world``: the world's coordinates, as the paper and Deformable 3DGS use them (made for the
+    Blender layout). ``cameras``: the camera frame of ``camera_frame`` (the point the cameras look at,
+    their distance / 4.031, to three digits), so a capture at any scale and place looks to the fields
+    like a Blender scene. ``auto``: the world's when the camera-based cube of the random
+    initialisation (half-size 1.3 x the scale) already lies within +/- 2 units of the origin and is
+    at least 0.4 units across (the Blender and D-NeRF scenes, our synthetic ones), else ``cameras``.
+    A forward-facing capture keeps the world's frame.
+    """
+    world = (torch.zeros(3), 1.0)
+    frame = camera_frame(data) if cfg.field_frame != "world" else None
+    if frame is None:
+        return world
+    center, scale = frame[0].float(), float(f"{frame[1]:.3g}")
+    half = cfg.init_extent * scale
+    if cfg.field_frame == "auto" and float(center.abs().max()) + half <= 2.0 and half >= 0.4:
+        return world
+    return center, scale
 
 
 def initial_gaussians(cfg: TrainConfig, aabb: torch.Tensor, device) -> torch.nn.ParameterDict:
@@ -100,6 +132,7 @@ class Trainer:
         self.static_fraction: float | None = None  # of the Gaussians marked static (dynamic.skip_static)
         gaussians = initial_gaussians(cfg, self.aabb, self.device)
         self.model = TraceModel(cfg, gaussians, self.aabb, self.dt_frame).to(self.device)
+        self.model.set_field_frame(*field_frame(cfg, self.data))
         self.optimizers = gaussian_optimizers(self.model.gaussians, cfg.optim, self.extent)
         self.field_opt = field_optimizer(self.model.field_parameter_groups(), cfg.optim)
         self.strategy = DefaultStrategy(cfg.densify, self.extent, cfg.total_iterations)
