@@ -2,11 +2,12 @@
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 import torch
 
-from tracegs.data.blender import DatasetError, load_image, load_scene
+from tracegs.data.blender import DatasetError, load_image, load_rgba, load_scene
 from tracegs.data.cameras import focus_point, look_at_viewmat, opengl_c2w_to_viewmat
 
 
@@ -119,3 +120,33 @@ def test_focus_point_refuses_parallel_or_backward_axes():
     outward[:, 2, :] *= -1  # flip each camera's forward axis (and its y axis, to stay a rotation)
     outward[:, 1, :] *= -1
     assert focus_point(outward) is None
+
+
+def test_training_times_outside_unit_interval_are_refused(tiny_scene):
+    """Frame indices written as times would make every time look alike to the fields' encodings."""
+    path = tiny_scene / "transforms_train.json"
+    meta = json.loads(path.read_text())
+    for k, f in enumerate(meta["frames"]):
+        f["time"] = float(k)
+    path.write_text(json.dumps(meta))
+    with pytest.raises(DatasetError, match=r"'time' 2 is outside \[0, 1\]") as err:
+        load_scene(tiny_scene, "train")
+    assert str(path) in str(err.value)
+
+
+def test_file_path_without_suffix_finds_a_jpg(tiny_scene):
+    """D-NeRF writes ``./train/r_000``; the image may be a PNG or, in converted captures, a JPEG."""
+    import imageio.v3 as iio
+
+    path = tiny_scene / "transforms_train.json"
+    meta = json.loads(path.read_text())
+    first = meta["frames"][0]
+    png = tiny_scene / first["file_path"]
+    jpg = png.with_suffix(".jpg")
+    iio.imwrite(jpg, iio.imread(png)[..., :3])
+    png.unlink()
+    first["file_path"] = "./" + str(Path(first["file_path"]).with_suffix(""))
+    path.write_text(json.dumps(meta))
+    frame = load_scene(tiny_scene, "train").frames[0]
+    assert frame.image_path == jpg.resolve()
+    assert load_rgba(frame).shape[-1] == 4

@@ -77,11 +77,17 @@ def read_json(path: Path) -> dict:
     return data
 
 
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr")
+
+
 def _resolve_image(json_path: Path, file_path: str) -> Path:
+    """The image a ``file_path`` names; without a suffix (D-NeRF writes ``./train/r_000``) the first
+    of ``.png``, ``.jpg``, ``.jpeg`` that exists (``.png`` if none does, for the error message)."""
     p = (json_path.parent / file_path).resolve()
-    if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".exr"):
+    if p.suffix.lower() in IMAGE_SUFFIXES:
         return p
-    return p.with_name(p.name + ".png")
+    candidates = [p.with_name(p.name + suffix) for suffix in IMAGE_SUFFIXES[:3]]
+    return next((c for c in candidates if c.is_file()), candidates[0])
 
 
 def _image_size(path: Path) -> tuple[int, int]:
@@ -136,6 +142,14 @@ def load_scene(root: str | Path, split: str = "train", downscale: int = 1) -> Sc
         time = float(entry.get("time", 0.0))
         if not math.isfinite(time):
             raise _fail(json_path, f"frame {i}: 'time' must be a finite number")
+        if split == "train" and not -1e-6 <= time <= 1 + 1e-6:
+            # the fields' time encodings assume the format's [0, 1]: at integer frame indices every
+            # sin(2^k pi t) is 0 and all times look alike
+            raise _fail(
+                json_path,
+                f"frame {i}: 'time' {time:g} is outside [0, 1]; the Blender / D-NeRF format gives "
+                "times normalised to [0, 1] (e.g. frame index / last frame index)",
+            )
         K = _intrinsics(json_path, entry, top, int(w), int(h), i)
         camera = Camera(opengl_c2w_to_viewmat(c2w), K, int(w), int(h))
         if downscale != 1:
