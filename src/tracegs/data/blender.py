@@ -37,6 +37,12 @@ class Frame:
     time: float
     camera: Camera
     camera_id: int | None = None
+    label: str | None = None
+    """A name unique within the split, for files written per frame; default: the image's stem."""
+
+    @property
+    def name(self) -> str:
+        return self.label or self.image_path.stem
 
     @property
     def width(self) -> int:
@@ -122,6 +128,10 @@ def load_scene(root: str | Path, split: str = "train", downscale: int = 1) -> Sc
     """
     root = Path(root)
     json_path = root / f"transforms_{split}.json"
+    if not json_path.is_file() and (root / f"{split}_meta.json").is_file():
+        from .panoptic import load_panoptic  # a capture in the Dynamic 3D Gaussians layout
+
+        return load_panoptic(root, split, downscale)
     top = read_json(json_path)
     frames = []
     first_size: tuple[int, int] | None = None  # images of one file share a size unless w/h say otherwise
@@ -204,4 +214,7 @@ def load_image(frame: Frame, background=(1.0, 1.0, 1.0)) -> torch.Tensor:
 
 
 def available_splits(root: str | Path) -> list[str]:
-    return [s for s in SPLITS if (Path(root) / f"transforms_{s}.json").is_file()]
+    root = Path(root)
+    return [
+        s for s in SPLITS if (root / f"transforms_{s}.json").is_file() or (root / f"{s}_meta.json").is_file()
+    ]

@@ -54,7 +54,7 @@ class ViewDataset:
                     camera=f.camera.to(device),
                     time=f.time,
                     camera_id=f.camera_id,
-                    name=f.image_path.stem,
+                    name=f.name,
                 )
             )
 

@@ -136,7 +136,7 @@ def evaluate_run(
                 if parts is not None:
                     parts.add(pred, gt, data / "gt" / "masks" / f.image_path.parent.name / f.image_path.name)
                 if save_images:
-                    atomic_write_image(run / "eval" / split / f"{f.image_path.stem}.png", pred)
+                    atomic_write_image(run / "eval" / split / f"{f.name}.png", pred)
         summary = _aggregate(records, lpips_fn is not None)
         if split == "extrapolation":
             summary["per_time"] = _per_time(records, lpips_fn is not None)

@@ -65,7 +65,7 @@ def image_strip(
     for run in runs.values():
         rows.append(
             [
-                iio.imread(Path(run) / "eval" / "extrapolation" / f"{f.image_path.stem}.png")[..., :3] / 255.0
+                iio.imread(Path(run) / "eval" / "extrapolation" / f"{f.name}.png")[..., :3] / 255.0
                 for f in picks
             ]
         )
