@@ -402,3 +402,17 @@ def test_a_bf16_run_is_rendered_in_fp32_on_cpus_without_amx(tiny_scene, tmp_path
     means = model.deform(0.5)["means"]
     model.bf16 = False
     assert torch.equal(means, model.deform(0.5)["means"]) != amx
+
+
+def test_describe_names_the_images_steps_and_a_downscale_for_large_images(tiny_scene, tmp_path):
+    trainer = Trainer(_cfg(tiny_scene, tmp_path / "run"), progress=False)
+    line = trainer.describe()
+    assert (
+        "trace (tiny) on 9 images of 24x24 px with t <= 0.667" in line
+        and "4 steps on cpu" in line
+        and "world frame" in line
+    )
+    assert "note" not in line
+    big = Trainer(_cfg(tiny_scene, tmp_path / "big", "cpu-fast"), progress=False)
+    big.data.views[0].camera = dataclasses.replace(big.data.views[0].camera, width=800, height=800)
+    assert "--downscale 7 trains at about 128 px" in big.describe()

@@ -267,6 +267,8 @@ class Trainer:
         self.run.mkdir(parents=True, exist_ok=True)
         save_config(cfg, self.run / "config.json")
         total = cfg.total_iterations
+        if self.progress:
+            tqdm.write(self.describe())
         bar = tqdm(total=total, initial=self.step, disable=not self.progress, desc=f"train {cfg.method}")
         log = (self.run / "log.jsonl").open("a")
         try:
@@ -291,6 +293,25 @@ class Trainer:
         summary = self.summary()
         atomic_write_text(self.run / "summary.json", json.dumps(summary, indent=2))
         return summary
+
+    def describe(self) -> str:
+        """What this run trains, in a line or two (printed when training starts)."""
+        cfg, cam = self.cfg, self.data.views[0].camera
+        frame = "world frame" if self.model._frame_scale is None else "cameras' frame"
+        text = (
+            f"{cfg.method} ({cfg.preset}) on {len(self.data)} images of {cam.width}x{cam.height} px with "
+            f"t <= {self.t_max:.3g}, {cfg.total_iterations} steps on {self.device} "
+            f"({resolve_backend(cfg.backend, self.device)} rasteriser, fields in the {frame})"
+        )
+        pixels = cam.width * cam.height
+        if self.device.type == "cpu" and cfg.preset == "cpu-fast" and pixels > 4 * 128 * 128:
+            factor = math.ceil(math.sqrt(pixels / (128 * 128)))
+            text += (
+                f"\n  note: {cam.width}x{cam.height} is {pixels / (128 * 128):.0f}x the pixels of the 128 px "
+                f"cpu-fast is made for, and the rasteriser's time grows with them; --downscale {factor} "
+                "trains at about 128 px"
+            )
+        return text
 
     def summary(self) -> dict:
         steps = max(self.step, 1)
