@@ -101,4 +101,6 @@ def test_a_run_keeps_its_frame_and_older_checkpoints_load_in_the_world_frame(tmp
     torch.save(ckpt, tmp_path / "run" / "checkpoint.pt")
     model, _, _ = load_run(tmp_path / "run", device="cpu")
     assert float(model.field_scale) == 1.0 and (model.field_center == 0).all()
-    assert model.to_field_frame(model.gaussians["means"]) is model.gaussians["means"]
+    assert (
+        model.fields_see_world and model.to_field_frame(model.gaussians["means"]) is model.gaussians["means"]
+    )

@@ -78,6 +78,11 @@ class TraceModel(nn.Module):
         identity = bool((self.field_center == 0).all()) and float(self.field_scale) == 1.0
         self._frame_scale = None if identity else float(self.field_scale)
 
+    @property
+    def fields_see_world(self) -> bool:
+        """Whether the fields see world coordinates (the frame is the identity)."""
+        return self._frame_scale is None
+
     def to_field_frame(self, x: torch.Tensor) -> torch.Tensor:
         """World positions [N, 3] as the fields see them."""
         return x if self._frame_scale is None else (x - self.field_center) / self._frame_scale

@@ -297,7 +297,7 @@ class Trainer:
     def describe(self) -> str:
         """What this run trains, in a line or two (printed when training starts)."""
         cfg, cam = self.cfg, self.data.views[0].camera
-        frame = "world frame" if self.model._frame_scale is None else "cameras' frame"
+        frame = "world frame" if self.model.fields_see_world else "cameras' frame"
         text = (
             f"{cfg.method} ({cfg.preset}) on {len(self.data)} images of {cam.width}x{cam.height} px with "
             f"t <= {self.t_max:.3g}, {cfg.total_iterations} steps on {self.device} "
