@@ -150,7 +150,7 @@ class TrainConfig:
     it on the point the cameras look at and scales it with their distance (any capture's scale);
     ``origin``: +/- ``init_extent`` around the origin. Forward-facing captures fall back to ``origin``."""
     field_frame: Literal["auto", "cameras", "world"] = "auto"
-    """The frame the fields see positions in (``train/trainer.py``, ``field_frame``): ``world``
+    """The frame the fields see positions in (``train/scene_frame.py``, ``field_frame``): ``world``
     coordinates (the paper's), or the ``cameras``' frame (centred where they look, scaled by their
     distance against the Blender layout's 4.03) for a capture in any units; ``auto`` takes the world's
     when the scene already lies within a few units of the origin, else the cameras'."""

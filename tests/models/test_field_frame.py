@@ -13,7 +13,8 @@ from tests.conftest import randomised_model, write_tiny_scene
 from tracegs.config import apply_overrides, make_config
 from tracegs.data.dataset import ViewDataset
 from tracegs.models.trace import TraceModel
-from tracegs.train.trainer import Trainer, field_frame, load_run
+from tracegs.train.scene_frame import field_frame
+from tracegs.train.trainer import Trainer, load_run
 
 CENTER, SCALE = torch.tensor([50.0, -20.0, 3.0]), 8.0
 VARIANTS = {

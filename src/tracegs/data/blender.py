@@ -71,13 +71,18 @@ def _fail(path: Path, problem: str) -> DatasetError:
     return DatasetError(f"{path}: {problem}")
 
 
-def read_json(path: Path) -> dict:
+def load_json(path: Path):
+    """A JSON file's contents; a missing or unparsable file is a ``DatasetError`` naming it."""
     if not path.is_file():
         raise _fail(path, "file not found")
     try:
-        data = json.loads(path.read_text())
+        return json.loads(path.read_text())
     except json.JSONDecodeError as e:
         raise _fail(path, f"not valid JSON ({e})") from None
+
+
+def read_json(path: Path) -> dict:
+    data = load_json(path)
     if not isinstance(data, dict) or not isinstance(data.get("frames"), list) or not data["frames"]:
         raise _fail(path, "expected an object with a non-empty list 'frames'")
     return data

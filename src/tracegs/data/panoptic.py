@@ -10,13 +10,12 @@ command takes such a folder as ``--data`` (``load_scene`` chooses this reader wh
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from .blender import DatasetError, Frame, SceneSplit
+from .blender import DatasetError, Frame, SceneSplit, load_json
 from .cameras import Camera
 
 KEYS = ("w", "h", "k", "w2c", "fn", "cam_id")
@@ -26,12 +25,7 @@ def load_panoptic(root: str | Path, split: str = "train", downscale: int = 1) ->
     """The frames of ``root/{split}_meta.json`` (see the module docstring)."""
     root = Path(root)
     path = root / f"{split}_meta.json"
-    try:
-        meta = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: file not found") from None
-    except json.JSONDecodeError as e:
-        raise DatasetError(f"{path}: not valid JSON ({e})") from None
+    meta = load_json(path)
     missing = [k for k in KEYS if not isinstance(meta, dict) or k not in meta]
     if missing:
         raise DatasetError(

@@ -67,7 +67,7 @@ class TraceModel(nn.Module):
     # ----- the fields' frame ----------------------------------------------------------------------
     def set_field_frame(self, center: torch.Tensor, scale: float) -> None:
         """The fields see positions as ``(x - center) / scale`` and their displacements and
-        velocities are scaled back (``field_frame`` in ``train/trainer.py`` chooses it). Their
+        velocities are scaled back (``field_frame`` in ``train/scene_frame.py`` chooses it). Their
         positional encodings (``sin(2^k pi x)``) and output sizes are made for scenes within a few
         units of the origin; a capture in other units or far from the origin is brought there."""
         self.field_center.copy_(torch.as_tensor(center, dtype=torch.float32))

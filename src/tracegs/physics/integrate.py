@@ -152,7 +152,7 @@ def acceleration_consistency(params: DynamicsParams, later: DynamicsParams, s: f
 
 def params_in_world(params: DynamicsParams, center: torch.Tensor, scale: float) -> DynamicsParams:
     """The same motion in world coordinates ``x = center + scale * x_n``, for ``params`` of particles
-    at normalised positions ``x_n`` (the frame the fields see, ``TraceModel.field_frame``).
+    at normalised positions ``x_n`` (the frame the fields see, ``TraceModel.set_field_frame``).
 
     ``dx/ds = scale (v_n + w x x_n) = (scale v_n - w x center) + w x x``: the equivalent velocity
     becomes ``scale v_n - w x center``, and each higher term the same with its own rotational partner
