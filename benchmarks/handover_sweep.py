@@ -9,7 +9,7 @@ RUN: a validation run (`tracegs train ... --t-train-end T` below the scene's own
 import argparse
 from pathlib import Path
 
-import tracegs.eval.protocol as protocol
+from tracegs.eval.protocol import evaluate_run
 
 
 def main() -> None:
@@ -18,25 +18,21 @@ def main() -> None:
     ap.add_argument("--frames", nargs="+", type=float, default=[1, 2, 4, 8])
     ap.add_argument("--future-end", type=float, required=True)
     args = ap.parse_args()
-    load_run = protocol.load_run
     for run in args.runs:
         for frames in args.frames:
-
-            def with_handover(path, device="auto", frames=frames):
-                model, cfg, meta = load_run(path, device)
-                cfg.dynamic.handover_frames = frames  # the model shares this config object
-                return model, cfg, meta
-
-            protocol.load_run = with_handover
-            r = protocol.evaluate_run(
-                run, with_lpips=False, save_images=False, future_end=args.future_end, device="cpu"
+            r = evaluate_run(
+                run,
+                with_lpips=False,
+                save_images=False,
+                future_end=args.future_end,
+                device="cpu",
+                render_settings={"dynamic__handover_frames": frames},
             )
             print(
                 f"{run.name} handover {frames:g}: future {r['extrapolation']['mae_psnr']:.2f} "
                 f"interpolation {r['interpolation']['mae_psnr']:.2f}",
                 flush=True,
             )
-    protocol.load_run = load_run
 
 
 if __name__ == "__main__":

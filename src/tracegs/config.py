@@ -210,7 +210,7 @@ def cpu_fast() -> TrainConfig:
         sh_degree=1,
         sh_degree_interval=500,
         checkpoint_every=1000,
-        # the small fields keep learning late in the run: f_defo's learning rate decays 50x instead of
+        # the small fields keep learning late in the run: their learning rate decays 50x instead of
         # the paper's 500x; validation future +0.18 / +0.15 / +0.56 dB on fan / foldingchair /
         # fallingball at the same cost (docs/DESIGN.md)
         optim=OptimConfig(field_lr_final=1.6e-5),

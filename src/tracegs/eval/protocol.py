@@ -16,6 +16,7 @@ from pathlib import Path
 
 import torch
 
+from ..config import apply_overrides
 from ..data.blender import Frame, available_splits, load_image, load_scene
 from ..train.trainer import load_run
 from ..utils import atomic_write_image
@@ -88,11 +89,16 @@ def evaluate_run(
     save_images: bool = True,
     device: str = "auto",
     future_end: float | None = None,
+    render_settings: dict | None = None,
 ) -> dict:
     """Render both splits of a trained run and score them (schema in docs/EVALUATION.md); with
-    ``future_end``, the extrapolation split is the validation future (``split_frames``)."""
+    ``future_end``, the extrapolation split is the validation future (``split_frames``).
+    ``render_settings``: config fields that only change rendering, set by name as in
+    ``config.apply_overrides`` (e.g. ``{"dynamic__handover_frames": 2}``)."""
     run = Path(run)
     model, cfg, meta = load_run(run, device)
+    if render_settings:
+        model.cfg = cfg = apply_overrides(cfg, render_settings)
     data = Path(data or cfg.data)
     scene = load_scene(data, "train", cfg.downscale)
     t_end = cfg.t_train_end if cfg.t_train_end is not None else scene.t_train_end
