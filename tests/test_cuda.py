@@ -35,11 +35,15 @@ def test_reference_backend_on_cuda_matches_cpu():
         assert rel_err(gpu["grad_" + name].cpu(), cpu["grad_" + name]) < 1e-4, name
 
 
+@pytest.mark.parametrize("frame", [None, (0.3, -0.2, 0.1, 2.5)], ids=["world", "camera_frame"])
 @pytest.mark.parametrize("switch", VARIANTS[::2], ids=VARIANT_IDS[::2])
-def test_fields_move_gaussians_the_same_on_cuda(switch):
+def test_fields_move_gaussians_the_same_on_cuda(switch, frame):
     # fp32 on both sides (the presets choose bf16 on CPUs with AMX, which would be the difference)
     cfg = apply_overrides(make_config("tiny", device="cpu", bf16=False), switch)
     cpu = randomised_model(cfg)
+    if frame is not None:  # the fields see positions in a moved and scaled frame (scene_frame.py)
+        cpu.set_field_frame(torch.tensor(frame[:3]), frame[3])
+        assert not cpu.fields_see_world
     gpu = copy.deepcopy(cpu).cuda()
     with torch.no_grad():
         for name, (a, b) in {
@@ -74,6 +78,19 @@ def test_run_trained_on_cuda_renders_the_same_on_cpu(tiny_scene, tmp_path, switc
         # tests/render/test_render_api.py), so a few pixels may differ by a barely visible alpha.
         assert (gpu - cpu).abs().max() < 3e-2
         assert (gpu - cpu).abs().mean() < 1e-3
+
+
+def test_run_trained_on_cuda_resumes(tiny_scene, tmp_path):
+    # the checkpoint is loaded onto the run's device, the CPU random state with it
+    cfg = make_config("tiny", data=tiny_scene, run=tmp_path / "run", device="cuda", init_points=300)
+    trainer = Trainer(cfg, progress=False)
+    for _ in range(3):
+        trainer.train_step()
+    trainer.save()
+    resumed = Trainer(cfg, progress=False)
+    assert resumed.step == 3
+    assert torch.equal(resumed.model.gaussians["means"], trainer.model.gaussians["means"])
+    assert resumed.train()["iterations"] == cfg.total_iterations
 
 
 def test_cuda_picks_gsplat_when_its_kernels_load():

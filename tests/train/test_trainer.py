@@ -73,6 +73,23 @@ def test_resume_continues_from_checkpoint(tiny_scene, tmp_path):
     assert resumed.train()["iterations"] == 4
 
 
+def test_a_failed_calibration_keeps_the_last_steps(tiny_scene, tmp_path, monkeypatch):
+    cfg = _cfg(tiny_scene, tmp_path / "run")
+    cfg.checkpoint_every = 3  # the last checkpoint of the loop would be step 3 of 4
+
+    def broken(self):
+        raise OSError("scene gone")
+
+    monkeypatch.setattr(Trainer, "calibrate", broken)
+    with pytest.raises(OSError, match="scene gone"):
+        Trainer(cfg, progress=False).train()
+    monkeypatch.undo()
+    resumed = Trainer(cfg, progress=False)
+    assert resumed.step == cfg.total_iterations
+    assert resumed.train()["iterations"] == cfg.total_iterations  # calibrates and writes the summary
+    assert (tmp_path / "run" / "summary.json").is_file()
+
+
 def test_resume_refuses_a_checkpoint_trained_with_other_settings(tiny_scene, tmp_path):
     cfg = _cfg(tiny_scene, tmp_path / "run")
     trainer = Trainer(cfg, progress=False)

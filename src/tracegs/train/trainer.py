@@ -231,6 +231,8 @@ class Trainer:
         finally:
             bar.close()
             log.close()
+        if self.step % cfg.checkpoint_every:  # the last steps are kept if the calibration fails
+            self.save()
         self.calibrate()
         self.save()
         summary = self.summary()
@@ -325,7 +327,7 @@ class Trainer:
         if self.model.static_mask is not None:
             self.static_fraction = float(self.model.static_mask.float().mean())
         self.timings.update(ckpt.get("timings", {}))
-        torch.set_rng_state(ckpt["rng"]["torch"])
+        torch.set_rng_state(ckpt["rng"]["torch"].cpu())  # map_location moved it to the run's device
         random.setstate(ckpt["rng"]["python"])
 
 
