@@ -101,6 +101,14 @@ class DynamicStageConfig:
     extrapolation_requery: bool = False
     """Re-query f_trd at every step when extrapolating (Alg. 1 applied progressively); default: query once at
     the handover time and let the constant accelerations evolve the parameters (measured better on fan)."""
+    hold_unseen: float = 10.0
+    """After the handover, keep where they are the Gaussians that no training image shows over the last
+    frames before it (found after training, ``train/calibrate.py``) and that f_trd moves more than
+    this many times faster than f_defo moved them over the 4 frames before it (plus a floor of 0.05
+    scene units per unit of time). Training shapes f_trd only through rendered images, so there its
+    velocity is whatever the field's smoothness gives, and the physics would slide such a Gaussian
+    (under a surface) into view; unseen Gaussians that f_trd moves as f_defo did (inside a moving
+    object) move on. Not in the paper; 0 = off. Render time only (docs/PHYSICS.md)."""
     freeze_static_threshold: float = 0.0
     """Gaussians whose deformation stays below this displacement (scene units) are frozen when
     extrapolating (0 = off). Used when ``freeze_static_auto`` is off."""

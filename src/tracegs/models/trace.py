@@ -16,9 +16,11 @@ import torch
 from torch import nn
 
 from ..physics.integrate import (
+    DynamicsParams,
     acceleration_consistency,
     integrate,
     params_in_world,
+    particle_velocity,
     rotation_consistency,
     step,
 )
@@ -59,6 +61,10 @@ class TraceModel(nn.Module):
         self.static_mask: torch.Tensor | None = None
         """[N] bool: Gaussians marked static during training (``dynamic.skip_static``), kept at their
         canonical geometry at every time and skipped by the fields; None: the fields move them all."""
+        self.unseen_mask: torch.Tensor | None = None
+        """[N] bool: Gaussians no training camera sees over the last frames before the handover, held
+        still after it (``dynamic.hold_unseen``; found after training by ``train/calibrate.py``);
+        None: not known, nothing held."""
         self._moving: torch.Tensor | None = None  # indices of the others
         # the rotation consistency's [N, k] neighbours, the means parameter they were found for and
         # their age in calls (a plain dict: a Parameter held as an attribute would join the module)
@@ -287,6 +293,11 @@ class TraceModel(nn.Module):
             moving = self.moving_mask(t0, threshold)
         if self.static_mask is not None:  # marked static in training: never moved by the physics
             moving = ~self.static_mask if moving is None else moving & ~self.static_mask
+        params = self.query_dynamics(means, t0)
+        unseen = self.unseen_mask if dyn.hold_unseen > 0 else None
+        if unseen is not None and unseen.shape[0] == means.shape[0]:  # f_trd was never shown them
+            held = unseen & ~self._fields_agree(t0, means, params, dyn.hold_unseen)
+            moving = ~held if moving is None else moving & ~held
         span = t - t0
         n = max(1, math.ceil(abs(span) / self.dt_max - 1e-9))
         h = span / n
@@ -295,15 +306,30 @@ class TraceModel(nn.Module):
             # Alg. 1 applied progressively: query f_trd at every step's start (or its end, ablation (4)).
             for k in range(n):
                 s = t0 + k * h
-                params = self.query_dynamics(new_means, s if dyn.physics_derivation else s + h)
+                if k > 0 or not dyn.physics_derivation:
+                    params = self.query_dynamics(new_means, s if dyn.physics_derivation else s + h)
                 new_means, new_quats = step(new_means, new_quats, params, h, dyn.integrator)[:2]
         else:  # query once at t0 and let the constant accelerations evolve the parameters
-            params = self.query_dynamics(means, t0)
             new_means, new_quats = integrate(means, quats, params, span, self.dt_max, dyn.integrator)[:2]
         if moving is not None:
             new_means = torch.where(moving[:, None], new_means, means)
             new_quats = torch.where(moving[:, None], new_quats, quats)
         return {"means": new_means, "quats": new_quats, "scales": state["scales"]}
+
+    def _fields_agree(
+        self, t0: float, means: torch.Tensor, params: DynamicsParams, ratio: float
+    ) -> torch.Tensor:
+        """[N] bool: f_trd's particle speed at ``t0`` is at most ``ratio`` times f_defo's mean speed over
+        the 4 frames before ``t0``, plus a floor of 0.05 scene units per unit of time in the fields'
+        frame (``dynamic.hold_unseen``)."""
+        frames = min(4.0, t0 / self.dt_max)
+        if self.deformation is None or frames <= 0:
+            return torch.ones(means.shape[0], dtype=torch.bool, device=means.device)
+        speed_defo = (means - self.deform(t0 - frames * self.dt_max)["means"]).norm(dim=-1) / (
+            frames * self.dt_max
+        )
+        speed_phys = particle_velocity(means, params.velocity, params.angular_velocity).norm(dim=-1)
+        return speed_phys <= ratio * (speed_defo + 0.05 * float(self.field_scale))
 
     @torch.no_grad()
     def moving_mask(self, t_max: float, threshold: float, samples: int = 8) -> torch.Tensor:

@@ -1,5 +1,11 @@
 """Post-training choices made on the training images only (never on the evaluation splits).
 
+``unseen_gaussians``: the Gaussians that no training camera sees over the last frames before the
+handover. Training shapes f_trd only through rendered images, so there its velocities are whatever the
+field's smoothness gives (measured on `fallingball`: Gaussians under the slab at 1.5-1.8 scene units
+per unit of time while f_defo, pulled by no image either, keeps them still); the physics would slide
+them into view after the handover, so ``dynamic.hold_unseen`` keeps them where they are.
+
 ``choose_freeze_threshold``: METHOD.md allows Gaussians that never move during training to be frozen
 at their state when extrapolating. Without it, f_trd's smoothness across an object's boundary lets a
 static part creep along with its moving neighbour (measured on ``fan``: the static base drifted as
@@ -18,6 +24,45 @@ import torch
 
 from ..data.blender import load_image, load_scene
 from ..eval.metrics import mae_psnr, mse
+from ..render.sh import SH_C0
+
+
+def training_frames_by_time(data: Path, downscale: int, t_max: float):
+    """The training scene and its frames with time <= ``t_max`` grouped by time: ``(scene, {t: frames})``
+    with the times in increasing order."""
+    scene = load_scene(Path(data), "train", downscale)
+    by_time: dict[float, list] = defaultdict(list)
+    for f in scene.frames:
+        if f.time <= t_max + 1e-9:
+            by_time[f.time].append(f)
+    return scene, dict(sorted(by_time.items()))
+
+
+def unseen_gaussians(
+    model, data: Path, downscale: int, t_max: float, frames: int = 9, min_weight: float = 0.5
+) -> torch.Tensor:
+    """[N] bool: the Gaussians that no training image at the last ``frames`` training times up to
+    ``t_max`` shows (f_defo's state at each; the handover lies 4 frames before t_max).
+
+    A Gaussian shows in an image by its blending weight ``sum_pixels alpha T``, read as the gradient
+    of the image's sum with respect to its colour (the degree-0 SH coefficient, whose colour factor is
+    ``SH_C0``): it must reach ``min_weight`` (half a pixel of full contribution) in some image, so
+    that a Gaussian under a surface whose footprint peeks out by a faint fringe counts as unseen.
+    """
+    scene, by_time = training_frames_by_time(data, downscale, t_max)
+    sh0 = model.gaussians["sh0"]
+    background = torch.tensor(scene.background, device=sh0.device)
+    seen = torch.zeros(sh0.shape[0], dtype=torch.bool, device=sh0.device)
+    for t in list(by_time)[-frames:]:
+        with torch.no_grad():
+            state = model.deform(t)
+        for f in by_time[t]:
+            with torch.enable_grad():  # also when called under no_grad (evaluation)
+                image = model.render(state, f.camera.to(sh0.device), model.cfg.sh_degree, background).image
+                (grad,) = torch.autograd.grad(image.sum(), sh0)
+            seen |= grad.reshape(sh0.shape[0], -1).sum(-1) / (3 * SH_C0) >= min_weight
+    return ~seen
+
 
 # Candidate thresholds as fractions of the scene extent (3DGS's camera radius); 0 = freeze nothing.
 FREEZE_FRACTIONS = (0.0, 0.001, 0.002, 0.005, 0.01, 0.02)
@@ -41,12 +86,8 @@ def choose_freeze_threshold(
     """
     if model.dynamics is None or model.deformation is None:
         return 0.0, {}
-    scene = load_scene(Path(data), "train", downscale)
-    by_time: dict[float, list] = defaultdict(list)
-    for f in scene.frames:
-        if f.time <= t_max + 1e-9:
-            by_time[f.time].append(f)
-    times = sorted(by_time)
+    scene, by_time = training_frames_by_time(data, downscale, t_max)
+    times = list(by_time)
     if len(times) < 4:
         return 0.0, {}
     horizon = max(2, min(horizon_frames, len(times) // 3))

@@ -1,0 +1,97 @@
+"""``dynamic.hold_unseen``: after the handover, the Gaussians that no training camera shows and that f_trd
+moves much faster than f_defo did are kept where they are (f_trd was never shown them)."""
+
+import math
+
+import pytest
+import torch
+from tests.conftest import randomised_model, write_tiny_scene
+
+from tracegs.config import make_config
+from tracegs.physics.integrate import DynamicsParams
+from tracegs.train.calibrate import unseen_gaussians
+from tracegs.train.trainer import Trainer, load_run
+
+T_MAX = 0.75
+V = torch.tensor([0.4, -0.2, 0.1])
+
+
+def _controlled_model(hold: float, n: int = 30):
+    """Three groups of ten Gaussians: shown by the cameras and moved by f_defo with V; unseen and kept
+    still by f_defo (under a surface); unseen and moved by f_defo with V (inside a moving object).
+    f_trd gives every Gaussian V as its equivalent velocity, with no rotation or acceleration."""
+    cfg = make_config("tiny", device="cpu", bf16=False)
+    cfg.dynamic.hold_unseen = hold
+    model = randomised_model(cfg, n=n)
+    canonical = model.gaussians["means"].detach().clone()
+    group = torch.arange(n) // (n // 3)
+    velocity = torch.where((group == 1)[:, None], torch.zeros(3), V)
+    model.unseen_mask = group > 0
+
+    def deform(t):
+        g = model.gaussians
+        return {"means": canonical + t * velocity, "quats": g["quats"], "scales": g["scales"]}
+
+    def query_dynamics(means, t):
+        zero = torch.zeros_like(means)
+        return DynamicsParams(V.expand_as(means).clone(), zero, zero, zero)
+
+    model.deform, model.query_dynamics = deform, query_dynamics
+    return model, canonical + model.handover_time(T_MAX) * velocity, group
+
+
+@pytest.mark.parametrize("hold", [3.0, 0.0])
+def test_only_unseen_gaussians_the_fields_disagree_on_are_held(hold):
+    model, handover, group = _controlled_model(hold)
+    t = 1.3
+    with torch.no_grad():
+        means = model.state_at(t, T_MAX)["means"]
+    carried = handover + (t - model.handover_time(T_MAX)) * V  # x(t0) + V (t - t0)
+    held = (group == 1) if hold > 0 else torch.zeros_like(group, dtype=torch.bool)
+    torch.testing.assert_close(means[~held], carried[~held], rtol=0, atol=1e-5)
+    torch.testing.assert_close(means[held], handover[held], rtol=0, atol=0)
+
+
+def test_a_slow_unseen_drift_within_the_floor_moves_on():
+    """f_trd's speed below 3 x the floor (0.05 scene units per unit of time) is not held, even where
+    f_defo kept the Gaussian still."""
+    model, handover, group = _controlled_model(3.0)
+    slow = torch.tensor([0.1, 0.0, 0.0])
+    model.query_dynamics = lambda means, t: DynamicsParams(
+        slow.expand_as(means).clone(), *(torch.zeros_like(means) for _ in range(3))
+    )
+    with torch.no_grad():
+        means = model.state_at(1.0, T_MAX)["means"]
+    torch.testing.assert_close(means, handover + (1.0 - model.handover_time(T_MAX)) * slow, rtol=0, atol=1e-5)
+
+
+def test_unseen_gaussians_are_those_no_training_image_shows(tmp_path):
+    scene = write_tiny_scene(tmp_path / "scene", n_times=5, size=24)
+    cfg = make_config("tiny", data=scene, run=tmp_path / "run", device="cpu")
+    model = Trainer(cfg, progress=False).model
+    g = model.gaussians
+    n = g["means"].shape[0]
+    kind = torch.arange(n) % 3  # 0: opaque and large at the centre, 1: transparent, 2: out of every view
+    with torch.no_grad():
+        g["means"][kind == 0] = 0.1 * torch.randn(int((kind == 0).sum()), 3)
+        g["scales"][kind == 0] = math.log(0.2)
+        g["opacities"][kind == 0] = 5.0
+        g["opacities"][kind == 1] = -20.0
+        g["means"][kind == 2] = torch.tensor([0.0, 0.0, -20.0])  # far below the cameras' view
+    unseen = unseen_gaussians(model, scene, 1, T_MAX)
+    assert unseen.shape == (n,) and unseen.dtype == torch.bool
+    assert unseen[kind > 0].all()
+    # the front ones of the opaque cluster are shown (those behind them may be hidden)
+    assert (~unseen[kind == 0]).float().mean() > 0.2
+
+
+def test_the_unseen_mask_is_found_after_training_and_kept_in_the_checkpoint(tmp_path):
+    scene = write_tiny_scene(tmp_path / "scene", n_times=5, size=24)
+    cfg = make_config("tiny", data=scene, run=tmp_path / "run", device="cpu", init_points=200)
+    trainer = Trainer(cfg, progress=False)
+    trainer.train()
+    mask = trainer.model.unseen_mask
+    assert mask is not None and mask.shape == (trainer.model.gaussians["means"].shape[0],)
+    ckpt = torch.load(tmp_path / "run" / "checkpoint.pt", map_location="cpu", weights_only=False)
+    assert torch.equal(ckpt["unseen_mask"], mask)
+    assert torch.equal(load_run(tmp_path / "run", device="cpu")[0].unseen_mask, mask)
