@@ -60,8 +60,16 @@ def test_every_ablation_switch_trains_and_renders_the_future(tiny_scene, tmp_pat
         assert torch.isfinite(state["means"]).all() and torch.isfinite(state["quats"]).all()
 
 
-def test_resume_continues_from_checkpoint(tiny_scene, tmp_path):
-    cfg = _cfg(tiny_scene, tmp_path / "run")
+@pytest.mark.parametrize(
+    "device",
+    # on CUDA the checkpoint is loaded onto the GPU, the CPU random state with it
+    [
+        "cpu",
+        pytest.param("cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")),
+    ],
+)
+def test_resume_continues_from_checkpoint(tiny_scene, tmp_path, device):
+    cfg = _cfg(tiny_scene, tmp_path / "run", device=device)
     trainer = Trainer(cfg, progress=False)
     for _ in range(3):
         trainer.train_step()
