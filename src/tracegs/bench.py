@@ -23,6 +23,7 @@ from .bench_report import (
     update_section,
 )
 from .config import make_config
+from .utils import atomic_write_text
 
 
 def _mlp_flops(module: torch.nn.Module, n: int) -> float:
@@ -170,15 +171,16 @@ def scene_folder(out: Path, scene: str, resolution: int, synthesize_missing: boo
     return data
 
 
-def _same_settings(run: Path, cfg) -> bool:
-    """Whether ``run`` was made with the settings of ``cfg``: the question a resume asks
-    (``train.trainer.changed_settings``; settings added since read as their defaults)."""
+def _changed_settings(run: Path, cfg) -> list[str] | None:
+    """The settings in which ``run`` was made otherwise than ``cfg`` asks (``train.trainer.changed_settings``,
+    the question a resume asks; settings added since read as their defaults); None when its config is
+    missing or unreadable."""
     from .train.trainer import changed_settings
 
     try:
-        return not changed_settings(json.loads((run / "config.json").read_text()), cfg)
+        return changed_settings(json.loads((run / "config.json").read_text()), cfg)
     except (FileNotFoundError, ValueError):
-        return False
+        return None
 
 
 def _set_aside(run: Path) -> None:
@@ -236,7 +238,7 @@ def run_variant_table(
     """
     from .config import apply_overrides
     from .eval.protocol import evaluate_run
-    from .train.trainer import Trainer
+    from .train.trainer import AFTER_TRAINING, Trainer
 
     records = []
     for scene in scenes:
@@ -252,17 +254,18 @@ def run_variant_table(
             slug = "TRACE" if _same_as_trace(variant) else label.replace(" ", "_").replace("=", "")
             run = Path(out) / "runs" / f"{Path(scene).name}_{slug}_{preset}{suffix}"
             cfg = apply_overrides(make_config(preset, data=data, run=run), {**scene_overrides, **variant})
-            done = run / "eval.json"
-            same = _same_settings(run, cfg)
+            done, changed = run / "eval.json", _changed_settings(run, cfg)
+            same = changed == []
             if not (done.is_file() and same) and not train:
                 print(f"{run}: no finished run with these settings; row skipped")
                 continue
             if not (done.is_file() and same):
-                if run.exists() and not same:  # made with other settings: keep it aside, start afresh
-                    _set_aside(run)
+                if run.exists() and (changed is None or set(changed) - AFTER_TRAINING):
+                    _set_aside(run)  # trained with other settings: keep it aside, start afresh
+                # else resumed: after the last step only the calibration runs again (a render-time setting)
                 summary = Trainer(cfg, progress=False).train()
                 result = evaluate_run(run, future_end=future_end)
-                done.write_text(json.dumps(result, indent=2))
+                atomic_write_text(done, json.dumps(result, indent=2))
             else:
                 summary = json.loads((run / "summary.json").read_text())
             result = json.loads(done.read_text())

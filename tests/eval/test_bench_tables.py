@@ -53,6 +53,31 @@ def test_rows_reuse_and_share_runs(tmp_path, monkeypatch):
     assert run_variant_table("methods", {"TRACE": METHODS["TRACE"]}, out, scenes, "tiny", train=False) == []
 
 
+def test_a_render_time_setting_re_evaluates_a_run_without_retraining(tmp_path, monkeypatch):
+    from tracegs import bench_report
+
+    monkeypatch.setattr(bench_report, "RESULTS_DIR", tmp_path / "results")
+    out = tmp_path / "bench"
+    scenes = (str(write_tiny_scene(tmp_path / "scene", size=32)),)
+    table = ("methods", {"TRACE": METHODS["TRACE"]}, out, scenes, "tiny")
+    (row,) = run_variant_table(*table, update_docs=False)
+    run = out / "runs" / "scene_TRACE_tiny"
+    trained = json.loads((run / "log.jsonl").read_text().splitlines()[-1])
+    scored = (run / "eval.json").stat().st_mtime_ns
+    # a setting read only when rendering: the finished run is scored again, not trained again
+    later = {"dynamic__handover_frames": 0.0}
+    assert run_variant_table(*table, overrides=later, train=False) == []  # report-only computes nothing
+    (again,) = run_variant_table(*table, overrides=later, update_docs=False)
+    assert not run.with_name(run.name + ".previous").exists()
+    assert json.loads((run / "log.jsonl").read_text().splitlines()[-1]) == trained  # no step was added
+    assert json.loads((run / "config.json").read_text())["dynamic"]["handover_frames"] == 0.0
+    assert (run / "eval.json").stat().st_mtime_ns != scored
+    assert again["train_s"] == row["train_s"]
+    # a training setting: set aside and trained afresh
+    run_variant_table(*table, overrides={"dynamic__dt_frames": 3.0}, update_docs=False)
+    assert run.with_name(run.name + ".previous").is_dir()
+
+
 def test_merge_records_keeps_other_rows_and_replaces_same_key(tmp_path):
     from tracegs.bench_report import merge_records
 

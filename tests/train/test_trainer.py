@@ -122,6 +122,29 @@ def test_resume_refuses_a_checkpoint_trained_with_other_settings(tiny_scene, tmp
         Trainer(cfg, progress=False)
 
 
+def test_a_finished_run_takes_new_render_time_settings_without_retraining(tiny_scene, tmp_path):
+    cfg = _cfg(tiny_scene, tmp_path / "run")
+    first = Trainer(cfg, progress=False)
+    first.train()
+    assert first.model.freeze_threshold is not None  # chosen after training (freeze_static_auto)
+    means = first.model.gaussians["means"].clone()
+    changed = apply_overrides(
+        cfg,
+        {"dynamic__handover_frames": 1.0, "dynamic__freeze_static_auto": False, "dynamic__hold_unseen": 0.0},
+    )
+    again = Trainer(changed, progress=False)
+    assert again.step == cfg.total_iterations
+    assert again.model.freeze_threshold is None and again.model.unseen_mask is None  # not the old choices
+    assert again.train()["iterations"] == cfg.total_iterations
+    assert torch.equal(again.model.gaussians["means"], means)  # the training is kept as it was
+    model, saved, _ = load_run(tmp_path / "run", device="cpu")
+    assert saved.dynamic.handover_frames == 1.0 and model.freeze_threshold is None
+    # and back: the calibration is made again with the settings that ask for it
+    model = Trainer(cfg, progress=False)
+    model.train()
+    assert model.model.freeze_threshold is not None and model.model.unseen_mask is not None
+
+
 def _perturbed_model(scene, run, **kw):
     model = Trainer(_cfg(scene, run, **kw), progress=False).model
     torch.manual_seed(0)

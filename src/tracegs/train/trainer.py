@@ -314,7 +314,7 @@ class Trainer:
             changed = changed_settings(ckpt.get("config", {}), self.cfg)
         except ValueError as err:
             raise ValueError(f"{path}: {err}; train into a new --run folder") from err
-        if changed:
+        if set(changed) - AFTER_TRAINING:
             raise ValueError(
                 f"{path}: the checkpoint was trained with other settings ({', '.join(changed)}); "
                 "resume with the same settings, or train into a new --run folder"
@@ -328,9 +328,10 @@ class Trainer:
         if self.field_opt is not None and ckpt["field_optimizer"] is not None:
             self.field_opt.load_state_dict(ckpt["field_optimizer"])
         self.step, self.train_seconds = ckpt["step"], ckpt["train_seconds"]
-        self.model.freeze_threshold = ckpt.get("freeze_threshold")
         self.model.set_static_mask(ckpt.get("static_mask"))
-        self.model.unseen_mask = ckpt.get("unseen_mask")
+        if not changed:  # else calibrated again with the new settings when the steps are done
+            self.model.freeze_threshold = ckpt.get("freeze_threshold")
+            self.model.unseen_mask = ckpt.get("unseen_mask")
         if self.model.static_mask is not None:
             self.static_fraction = float(self.model.static_mask.float().mean())
         self.timings.update(ckpt.get("timings", {}))
@@ -341,6 +342,17 @@ class Trainer:
 # Settings that may change when a killed run is resumed: where things are and the arithmetic of the
 # machine (bf16 where the CPU has AMX), not what is trained.
 RESUMABLE_CHANGES = frozenset({"run", "data", "device", "backend", "bf16", "checkpoint_every", "log_every"})
+AFTER_TRAINING = frozenset(
+    {
+        "dynamic.handover_frames",
+        "dynamic.extrapolation_requery",
+        "dynamic.hold_unseen",
+        "dynamic.freeze_static_threshold",
+        "dynamic.freeze_static_auto",
+    }
+)
+"""Settings that only the calibration after the last step and the rendering read: a run resumed with
+new values of them keeps its training and redoes its calibration (a finished run in seconds)."""
 
 
 def changed_settings(saved: dict, cfg: TrainConfig) -> list[str]:
