@@ -8,6 +8,11 @@ the target of ``dynamic.acceleration_consistency``), the angular velocity of the
 fits f_defo's own motion of the part's Gaussians over the same dt (``w_defo``, Kabsch via scipy: what
 the deformation field has reconstructed, for telling a physics error from a reconstruction error),
 and the mean |weight| of f_trd's acceleration head (its init is N(0, 0.01^2)).
+A "rigid fit" line per part and time reads the part as one rigid body, independently of how each
+particle's velocity is split between v_bar and w: the rigid motion that best fits the particle
+velocities ``v_bar + w x x`` (the velocity of the part's moving pivot, and w), and the pivot's
+acceleration that the learned accelerations give (``a_bar + eps x x + w x u`` fitted with a rigid
+acceleration field), each beside the closed-form truth.
 Usage: .venv/bin/python benchmarks/learned_dynamics.py RUN [RUN ...]
 """
 
@@ -18,7 +23,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from tracegs.eval.physics import _gt, _parts_at
+from tracegs.eval.physics import _gt, _motions, _parts_at
 from tracegs.physics.integrate import integrate, particle_velocity
 from tracegs.train.trainer import load_run
 
@@ -30,6 +35,35 @@ def _rigid_fit_angular_velocity(a: torch.Tensor, b: torch.Tensor, dt: float) -> 
     return (rotation.as_rotvec() / dt).round(4)
 
 
+def _cross_matrix(r: torch.Tensor) -> torch.Tensor:
+    """[N, 3, 3] matrices M with ``M w = r x w = -(w x r)``, so that ``v + w x r = v - M w``."""
+    zero = torch.zeros_like(r[:, 0])
+    x, y, z = r.unbind(-1)
+    return torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).view(-1, 3, 3)
+
+
+def _rigid_fit(x: torch.Tensor, u: torch.Tensor, acc: torch.Tensor, pivot: torch.Tensor):
+    """Least-squares rigid motion of particles at ``x`` with velocities ``u``: ``u = v + w x (x - pivot)``
+    gives (v, w); then ``acc - w x (w x r) = a + eps x r`` gives the pivot's acceleration a."""
+    r = (x - pivot).double()
+    system = torch.cat([torch.eye(3, dtype=r.dtype).expand(len(r), 3, 3), -_cross_matrix(r)], -1).reshape(
+        -1, 6
+    )
+    v_w = torch.linalg.lstsq(system, u.double().reshape(-1)).solution
+    w = v_w[3:].expand_as(r)
+    centripetal = torch.cross(w, torch.cross(w, r, dim=-1), dim=-1)
+    a_eps = torch.linalg.lstsq(system, (acc.double() - centripetal).reshape(-1)).solution
+    return v_w[:3].numpy().round(3), v_w[3:].numpy().round(3), a_eps[:3].numpy().round(3)
+
+
+def _truth(motion: dict, t: float):
+    """(pivot at t, its velocity, its acceleration, w) of a part's closed-form motion (gt/motion.json)."""
+    v, a = np.asarray(motion["linear_velocity"]), np.asarray(motion["linear_acceleration"])
+    pivot = np.asarray(motion["pivot"]) + v * t + 0.5 * a * t * t
+    w = (motion["angular_velocity"] + motion["angular_acceleration"] * t) * np.asarray(motion["axis"])
+    return pivot, (v + a * t).round(3), a.round(3), w.round(3)
+
+
 def _median(x: torch.Tensor):
     return x.median(0).values.numpy().round(4)
 
@@ -37,7 +71,7 @@ def _median(x: torch.Tensor):
 @torch.no_grad()
 def report(run: Path) -> None:
     model, cfg, meta = load_run(run, device="cpu")
-    t_max, gt = meta["t_max"], _gt(Path(cfg.data))
+    t_max, gt, motions = meta["t_max"], _gt(Path(cfg.data)), _motions(Path(cfg.data))
     if model.dynamics is None:  # DefGS: f_defo's own motion only
         print(f"{run}: no f_trd (DefGS)")
     else:
@@ -61,6 +95,19 @@ def report(run: Path) -> None:
                 )
                 line += f" v {_median(v)} a_bar {a_bar} a_fd {_median(a_fd[m])} w {w} eps {eps}"
             print(f"{line} w_defo {_rigid_fit_angular_velocity(means[m], defo_later[m], dt)}")
+            if model.dynamics is not None:
+                pivot, v_true, a_true, w_true = _truth(motions[part - 1], t)
+                x = means[m]
+                acc = (
+                    p.acceleration[m]
+                    + torch.cross(p.angular_acceleration[m], x, dim=-1)
+                    + torch.cross(p.angular_velocity[m], v, dim=-1)
+                )
+                v_fit, w_fit, a_fit = _rigid_fit(x, v, acc, torch.as_tensor(pivot, dtype=x.dtype))
+                print(
+                    f"  t={t:.3f} part {part} rigid fit: pivot v {v_fit} (true {v_true}) w {w_fit} "
+                    f"(true {w_true}) pivot a from the accelerations {a_fit} (true {a_true})"
+                )
 
 
 if __name__ == "__main__":
