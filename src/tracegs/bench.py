@@ -257,7 +257,13 @@ def run_variant_table(
             done, changed = run / "eval.json", _changed_settings(run, cfg)
             same = changed == []
             if not (done.is_file() and same) and not train:
-                print(f"{run}: no finished run with these settings; row skipped")
+                why = "no finished run with these settings"
+                if done.is_file() and changed is not None and not set(changed) - AFTER_TRAINING:
+                    why = (
+                        f"scored with other render-time settings ({', '.join(changed)}); "
+                        "run without --report-only to score it again"
+                    )
+                print(f"{run}: {why}; row skipped")
                 continue
             if not (done.is_file() and same):
                 if run.exists() and (changed is None or set(changed) - AFTER_TRAINING):

@@ -53,7 +53,7 @@ def test_rows_reuse_and_share_runs(tmp_path, monkeypatch):
     assert run_variant_table("methods", {"TRACE": METHODS["TRACE"]}, out, scenes, "tiny", train=False) == []
 
 
-def test_a_render_time_setting_re_evaluates_a_run_without_retraining(tmp_path, monkeypatch):
+def test_a_render_time_setting_re_evaluates_a_run_without_retraining(tmp_path, monkeypatch, capsys):
     from tracegs import bench_report
 
     monkeypatch.setattr(bench_report, "RESULTS_DIR", tmp_path / "results")
@@ -67,6 +67,7 @@ def test_a_render_time_setting_re_evaluates_a_run_without_retraining(tmp_path, m
     # a setting read only when rendering: the finished run is scored again, not trained again
     later = {"dynamic__handover_frames": 0.0}
     assert run_variant_table(*table, overrides=later, train=False) == []  # report-only computes nothing
+    assert "dynamic.handover_frames" in capsys.readouterr().out
     (again,) = run_variant_table(*table, overrides=later, update_docs=False)
     assert not run.with_name(run.name + ".previous").exists()
     assert json.loads((run / "log.jsonl").read_text().splitlines()[-1]) == trained  # no step was added
