@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from tracegs.eval.physics import _gt, _motions, _parts_at
 from tracegs.physics.integrate import integrate, particle_velocity
+from tracegs.physics.so3 import skew
 from tracegs.train.trainer import load_run
 
 
@@ -35,20 +36,11 @@ def _rigid_fit_angular_velocity(a: torch.Tensor, b: torch.Tensor, dt: float) -> 
     return (rotation.as_rotvec() / dt).round(4)
 
 
-def _cross_matrix(r: torch.Tensor) -> torch.Tensor:
-    """[N, 3, 3] matrices M with ``M w = r x w = -(w x r)``, so that ``v + w x r = v - M w``."""
-    zero = torch.zeros_like(r[:, 0])
-    x, y, z = r.unbind(-1)
-    return torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).view(-1, 3, 3)
-
-
 def _rigid_fit(x: torch.Tensor, u: torch.Tensor, acc: torch.Tensor, pivot: torch.Tensor):
     """Least-squares rigid motion of particles at ``x`` with velocities ``u``: ``u = v + w x (x - pivot)``
     gives (v, w); then ``acc - w x (w x r) = a + eps x r`` gives the pivot's acceleration a."""
     r = (x - pivot).double()
-    system = torch.cat([torch.eye(3, dtype=r.dtype).expand(len(r), 3, 3), -_cross_matrix(r)], -1).reshape(
-        -1, 6
-    )
+    system = torch.cat([torch.eye(3, dtype=r.dtype).expand(len(r), 3, 3), -skew(r)], -1).reshape(-1, 6)
     v_w = torch.linalg.lstsq(system, u.double().reshape(-1)).solution
     w = v_w[3:].expand_as(r)
     centripetal = torch.cross(w, torch.cross(w, r, dim=-1), dim=-1)

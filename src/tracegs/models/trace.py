@@ -295,7 +295,8 @@ class TraceModel(nn.Module):
             moving = ~self.static_mask if moving is None else moving & ~self.static_mask
         params = self.query_dynamics(means, t0)
         unseen = self.unseen_mask if dyn.hold_unseen > 0 else None
-        if unseen is not None and unseen.shape[0] == means.shape[0]:  # f_trd was never shown them
+        if unseen is not None and unseen.shape[0] == means.shape[0] and bool(unseen.any()):
+            # f_trd was never shown them
             held = unseen & ~self._fields_agree(t0, means, params, dyn.hold_unseen)
             moving = ~held if moving is None else moving & ~held
         span = t - t0

@@ -23,8 +23,10 @@ from pathlib import Path
 import torch
 
 from ..data.blender import load_image, load_scene
+from ..data.dataset import ViewDataset
 from ..eval.metrics import mae_psnr, mse
 from ..render.sh import SH_C0
+from .strategy import scene_extent_from_cameras
 
 
 def training_frames_by_time(data: Path, downscale: int, t_max: float):
@@ -115,3 +117,32 @@ def choose_freeze_threshold(
         scores[threshold] = mae_psnr(errors)
     best = max(scores, key=lambda k: (round(scores[k], 2), -k))
     return best, scores
+
+
+def needs_unseen_mask(model) -> bool:
+    """Whether the Gaussians no camera sees are still to be found (``dynamic.hold_unseen``): TRACE with
+    both fields (f_defo gives the states at the training times, f_trd the motion after the handover)."""
+    return (
+        model.cfg.dynamic.hold_unseen > 0
+        and model.unseen_mask is None
+        and model.dynamics is not None
+        and model.deformation is not None
+    )
+
+
+def calibrate_after_training(model, t_max: float, extent: float | None = None) -> dict[float, float]:
+    """The choices still to make on a trained model (those it holds are kept): the Gaussians no camera
+    sees before the handover, then the freeze threshold. ``extent``: the scene extent of the training
+    cameras, found from the scene when None and needed. Returns the PSNR per candidate freeze
+    threshold (empty when the threshold was not chosen here)."""
+    cfg = model.cfg
+    if needs_unseen_mask(model):
+        model.unseen_mask = unseen_gaussians(model, cfg.data, cfg.downscale, t_max)
+    if not cfg.dynamic.freeze_static_auto or model.freeze_threshold is not None:
+        return {}
+    if extent is None:
+        dev = model.aabb.device
+        centers = ViewDataset(cfg.data, "train", cfg.downscale, t_max=t_max, device=dev).camera_centers()
+        extent = scene_extent_from_cameras(centers)
+    model.freeze_threshold, scores = choose_freeze_threshold(model, cfg.data, cfg.downscale, t_max, extent)
+    return scores

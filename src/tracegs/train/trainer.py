@@ -31,7 +31,7 @@ from ..models.gaussians import create_gaussians, empty_like_params, random_gauss
 from ..models.trace import TraceModel
 from ..render.rendering import resolve_backend
 from ..utils import atomic_torch_save, atomic_write_text, resolve_device, seed_everything, synchronize
-from .calibrate import choose_freeze_threshold, unseen_gaussians
+from .calibrate import calibrate_after_training
 from .losses import photometric_loss
 from .optim import field_lrs, field_optimizer, gaussian_optimizers, means_lr, set_group_lrs, set_lr
 from .scene_frame import default_aabb, field_frame
@@ -279,15 +279,8 @@ class Trainer:
     def calibrate(self) -> None:
         """Post-training choices on the training images (``calibrate.py``): the Gaussians no camera
         sees before the handover, then the freeze threshold."""
-        if needs_unseen_mask(self.model):
-            self.model.unseen_mask = unseen_gaussians(
-                self.model, self.cfg.data, self.cfg.downscale, self.t_max
-            )
-        if self.cfg.dynamic.freeze_static_auto and self.model.freeze_threshold is None:
-            threshold, scores = choose_freeze_threshold(
-                self.model, self.cfg.data, self.cfg.downscale, self.t_max, self.extent
-            )
-            self.model.freeze_threshold = threshold
+        scores = calibrate_after_training(self.model, self.t_max, self.extent)
+        if scores:
             self.freeze_psnr = {f"{k:.6g}": round(v, 3) for k, v in scores.items()}
 
     # ----- checkpoints -----------------------------------------------------------------------------
@@ -377,17 +370,6 @@ def _changed_settings(saved: dict, current: dict, prefix: str = "") -> list[str]
     return changed
 
 
-def needs_unseen_mask(model: TraceModel) -> bool:
-    """Whether the Gaussians no camera sees are still to be found (``dynamic.hold_unseen``): TRACE with
-    both fields (f_defo gives the states at the training times, f_trd the motion after the handover)."""
-    return (
-        model.cfg.dynamic.hold_unseen > 0
-        and model.unseen_mask is None
-        and model.dynamics is not None
-        and model.deformation is not None
-    )
-
-
 def load_run(run: str | Path, device: str = "auto") -> tuple[TraceModel, TrainConfig, dict]:
     """A trained model from a run folder (for rendering and evaluation), with its config and metadata."""
     run = Path(run)
@@ -410,17 +392,8 @@ def load_run(run: str | Path, device: str = "auto") -> tuple[TraceModel, TrainCo
     model.freeze_threshold = ckpt.get("freeze_threshold")
     model.set_static_mask(ckpt.get("static_mask"))
     model.unseen_mask = ckpt.get("unseen_mask")
-    if needs_unseen_mask(model) and Path(cfg.data).is_dir():  # written before it was stored: find it now
-        model.unseen_mask = unseen_gaussians(model, cfg.data, cfg.downscale, ckpt["t_max"])
-    if model.freeze_threshold is None and cfg.dynamic.freeze_static_auto and Path(cfg.data).is_dir():
-        # a checkpoint written before training ended (or by an older version): choose it now
-        centers = ViewDataset(
-            cfg.data, "train", cfg.downscale, t_max=ckpt["t_max"], device=dev
-        ).camera_centers()
-        extent = scene_extent_from_cameras(centers)
-        model.freeze_threshold = choose_freeze_threshold(
-            model, cfg.data, cfg.downscale, ckpt["t_max"], extent
-        )[0]
+    if Path(cfg.data).is_dir():  # a checkpoint written before training ended, or by an older version
+        calibrate_after_training(model, ckpt["t_max"])
     meta = {
         "step": ckpt["step"],
         "train_seconds": ckpt["train_seconds"],
