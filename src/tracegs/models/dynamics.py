@@ -24,6 +24,8 @@ from tracegs.models.encoding import encoding_dim, linear_of_parts, positional_en
 from tracegs.physics.integrate import DynamicsParams, equivalent_from_center
 
 ACTIVATIONS = {"silu": nn.SiLU, "relu": nn.ReLU}
+ACCELERATIONS = ("acceleration", "angular_acceleration", "jerk", "angular_jerk")
+"""The outputs scaled as a_raw |a_raw| / scale, last in ``output_slices``."""
 
 
 @dataclass
@@ -60,6 +62,11 @@ class DynamicsConfig:
     a loss on the accelerations (``dynamic.acceleration_consistency``) then trains only their head and
     leaves the features, hence the velocities, to the photometric loss (measured: without the stop the
     consistency loss degrades the velocity fit; tests/models/test_fields.py)."""
+    acceleration_depth: int = 0
+    """0: the accelerations (and jerks) are read from the velocities' MLP by the shared head. > 0:
+    they have their own MLP of this many hidden layers (width ``width``) on the same encoding, so that
+    they can follow time as the velocities do while a loss on them cannot bend the velocities'
+    features (docs/PHYSICS.md)."""
 
     @classmethod
     def light(cls, **overrides) -> DynamicsConfig:
@@ -83,6 +90,14 @@ def scale_acceleration(raw: torch.Tensor, scale: float) -> torch.Tensor:
     return raw * raw.abs() / scale
 
 
+def hidden_layers(in_dim: int, depth: int, width: int, activation: str) -> nn.Sequential:
+    """``depth`` x (Linear, activation), ``in_dim`` -> ``width``."""
+    layers: list[nn.Module] = []
+    for i in range(depth):
+        layers += [nn.Linear(in_dim if i == 0 else width, width), ACTIVATIONS[activation]()]
+    return nn.Sequential(*layers)
+
+
 class DynamicsField(nn.Module):
     """f_trd: ``forward(x [N, 3], t) -> DynamicsParams`` (Eq. 6), in the dtype of ``x``."""
 
@@ -98,18 +113,30 @@ class DynamicsField(nn.Module):
         channel = torch.arange(in_dim) % 4  # the joint (x, y, z, t) encoding's channel of each column
         self.register_buffer("position_columns", torch.nonzero(channel != 3)[:, 0], persistent=False)
         self.register_buffer("time_columns", torch.nonzero(channel == 3)[:, 0], persistent=False)
-        layers: list[nn.Module] = []
-        for i in range(cfg.depth):
-            layers += [nn.Linear(in_dim if i == 0 else cfg.width, cfg.width), ACTIVATIONS[cfg.activation]()]
-        self.mlp = nn.Sequential(*layers)
-        self.head = nn.Linear(cfg.width, 3 * len(self.slices))
+        self.mlp = hidden_layers(in_dim, cfg.depth, cfg.width, cfg.activation)
+        # the slices the shared head gives; with ``acceleration_depth`` the rest come from their own MLP
+        rates = [n for n in self.slices if n in ACCELERATIONS]
+        shared = len(self.slices) - (len(rates) if cfg.acceleration_depth > 0 else 0)
+        self.head = nn.Linear(cfg.width, 3 * shared)
+        if cfg.acceleration_depth > 0 and rates:
+            self.acceleration_mlp = hidden_layers(in_dim, cfg.acceleration_depth, cfg.width, cfg.activation)
+            self.acceleration_head = nn.Linear(cfg.width, 3 * len(rates))
         self._init_head()
+
+    @property
+    def separate_accelerations(self) -> bool:
+        """Whether the accelerations (and jerks) have their own MLP (``acceleration_depth``)."""
+        return hasattr(self, "acceleration_mlp")
 
     @torch.no_grad()
     def _init_head(self) -> None:
         nn.init.zeros_(self.head.weight)
         nn.init.zeros_(self.head.bias)
-        for name in ("acceleration", "angular_acceleration", "jerk", "angular_jerk"):
+        if self.separate_accelerations:
+            nn.init.normal_(self.acceleration_head.weight, std=self.cfg.acceleration_init_std)
+            nn.init.zeros_(self.acceleration_head.bias)
+            return
+        for name in ACCELERATIONS:
             if name in self.slices:
                 nn.init.normal_(self.head.weight[self.slices[name]], std=self.cfg.acceleration_init_std)
 
@@ -146,15 +173,20 @@ class DynamicsField(nn.Module):
 
         The MLP on ``encode(x, t)``, its first layer evaluated part by part (``linear_of_parts``: a
         time shared by all points enters as a bias)."""
-        first = linear_of_parts(self.mlp[0], self._input_parts(x, t))
+        parts = self._input_parts(x, t)
+        first = linear_of_parts(self.mlp[0], parts)
         features = self.mlp[2:](self.mlp[1](first))
         raw = self.head(features)
-        if self.cfg.detach_acceleration_features and self.cfg.order >= 2:
+        if self.separate_accelerations:
+            mlp = self.acceleration_mlp
+            first = linear_of_parts(mlp[0], parts)
+            raw = torch.cat([raw, self.acceleration_head(mlp[2:](mlp[1](first)))], dim=-1)
+        elif self.cfg.detach_acceleration_features and self.cfg.order >= 2:
             first = self.slices["acceleration"].start
             raw = torch.cat([raw[:, :first], self.head(features.detach())[:, first:]], dim=-1)
         raw = raw.to(x.dtype)
         out = {name: raw[:, s] for name, s in self.slices.items()}
-        for name in ("acceleration", "angular_acceleration", "jerk", "angular_jerk"):
+        for name in ACCELERATIONS:
             if name in out:
                 out[name] = scale_acceleration(out[name], self.cfg.acceleration_scale)
         return out
