@@ -67,7 +67,11 @@ def report(run: Path) -> None:
     if model.dynamics is None:  # DefGS: f_defo's own motion only
         print(f"{run}: no f_trd (DefGS)")
     else:
-        head = model.dynamics.head.weight[model.dynamics.slices["acceleration"]]
+        field = model.dynamics
+        if field.separate_accelerations:  # its own head: a_bar first
+            head = field.acceleration_head.weight[:3]
+        else:
+            head = field.head.weight[field.slices["acceleration"]]
         print(f"{run}: acceleration head mean |w| {head.abs().mean().item():.4f}")
     for t in (0.2, 0.4, 0.6, model.handover_time(t_max)):
         means, owner = _parts_at(model, t, t_max, gt, 0.03)
