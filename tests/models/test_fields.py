@@ -387,6 +387,8 @@ def test_bad_config_is_rejected():
         DynamicsField(dynamics_config(order=4))
     with pytest.raises(ValueError):
         DynamicsField(dynamics_config(activation="tanh"))
+    with pytest.raises(ValueError, match="acceleration_depth"):
+        DynamicsField(dynamics_config(acceleration_depth=-1))
 
 
 def test_hexplane_fit_bounds_covers_the_bulk_and_ignores_far_floaters():

@@ -66,7 +66,7 @@ class DynamicsConfig:
     """0: the accelerations (and jerks) are read from the velocities' MLP by the shared head. > 0:
     they have their own MLP of this many hidden layers (width ``width``) on the same encoding, so that
     they can follow time as the velocities do while a loss on them cannot bend the velocities'
-    features (docs/PHYSICS.md)."""
+    features (docs/PHYSICS.md); ``detach_acceleration_features`` then has nothing to detach."""
 
     @classmethod
     def light(cls, **overrides) -> DynamicsConfig:
@@ -107,6 +107,8 @@ class DynamicsField(nn.Module):
             raise ValueError(f"order must be 1, 2 or 3, got {cfg.order}")
         if cfg.activation not in ACTIVATIONS:
             raise ValueError(f"activation must be one of {sorted(ACTIVATIONS)}, got {cfg.activation!r}")
+        if cfg.acceleration_depth < 0:
+            raise ValueError(f"acceleration_depth must be >= 0, got {cfg.acceleration_depth}")
         self.cfg = cfg
         self.slices = cfg.output_slices()
         in_dim = self.encode(torch.zeros(1, 3), 0.0).shape[-1]  # the encoding says its own width
