@@ -168,10 +168,13 @@ class DynamicsField(nn.Module):
             (positional_encoding(time, self.cfg.time_frequencies), slice(ex, None)),
         ]
 
-    def outputs(self, x: torch.Tensor, t: float | torch.Tensor) -> dict[str, torch.Tensor]:
+    def outputs(
+        self, x: torch.Tensor, t: float | torch.Tensor, rates: bool = True
+    ) -> dict[str, torch.Tensor]:
         """The head's named outputs [N, 3] (``cfg.output_slices``; accelerations and jerks scaled), in
         the dtype of ``x``: for the non-equivalent variant the explicit centre P_c and its velocity,
-        before ``forward`` converts them (Eq. 5).
+        before ``forward`` converts them (Eq. 5). ``rates=False``: without the accelerations and jerks
+        (and without the work that only they need).
 
         The MLP on ``encode(x, t)``, its first layer evaluated part by part (``linear_of_parts``: a
         time shared by all points enters as a bias)."""
@@ -179,23 +182,24 @@ class DynamicsField(nn.Module):
         first = linear_of_parts(self.mlp[0], parts)
         features = self.mlp[2:](self.mlp[1](first))
         raw = self.head(features)
-        if self.separate_accelerations:
+        if rates and self.separate_accelerations:
             mlp = self.acceleration_mlp
             first = linear_of_parts(mlp[0], parts)
             raw = torch.cat([raw, self.acceleration_head(mlp[2:](mlp[1](first)))], dim=-1)
-        elif self.cfg.detach_acceleration_features and self.cfg.order >= 2:
+        elif rates and self.cfg.detach_acceleration_features and self.cfg.order >= 2:
             first = self.slices["acceleration"].start
             raw = torch.cat([raw[:, :first], self.head(features.detach())[:, first:]], dim=-1)
         raw = raw.to(x.dtype)
-        out = {name: raw[:, s] for name, s in self.slices.items()}
+        out = {name: raw[:, s] for name, s in self.slices.items() if rates or name not in ACCELERATIONS}
         for name in ACCELERATIONS:
             if name in out:
                 out[name] = scale_acceleration(out[name], self.cfg.acceleration_scale)
         return out
 
-    def forward(self, x: torch.Tensor, t: float | torch.Tensor) -> DynamicsParams:
-        """Dynamics parameters of particles at positions ``x`` [N, 3] at time ``t`` (float or [N, 1])."""
-        return self.params(self.outputs(x, t))
+    def forward(self, x: torch.Tensor, t: float | torch.Tensor, rates: bool = True) -> DynamicsParams:
+        """Dynamics parameters of particles at positions ``x`` [N, 3] at time ``t`` (float or [N, 1]);
+        with ``rates=False`` the velocities only (accelerations zero, as for order 1)."""
+        return self.params(self.outputs(x, t, rates))
 
     def params(self, out: dict[str, torch.Tensor]) -> DynamicsParams:
         """``outputs`` as the integrator's parameters: zero accelerations for order 1, and the explicit

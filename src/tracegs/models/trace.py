@@ -156,10 +156,11 @@ class TraceModel(nn.Module):
             states.append(dict(zip(names, moved, strict=True)))
         return states
 
-    def query_dynamics(self, means: torch.Tensor, t: float):
-        """Eq. 6: the learned physical parameters of every particle at time t (float32)."""
+    def query_dynamics(self, means: torch.Tensor, t: float, rates: bool = True):
+        """Eq. 6: the learned physical parameters of every particle at time t (float32); with
+        ``rates=False`` the velocities only (``DynamicsField.forward``)."""
         with self.autocast():
-            params = self.dynamics(self.to_field_frame(means), t)
+            params = self.dynamics(self.to_field_frame(means), t, rates)
         params = type(params)(*[None if p is None else p.float() for p in params])
         if self._frame_scale is None:
             return params
@@ -228,7 +229,7 @@ class TraceModel(nn.Module):
         learns_accelerations = self.cfg.dynamics.order >= 2 and dyn.physics_derivation
         if dyn.acceleration_consistency > 0 and learns_accelerations and t != t_prime:
             with torch.no_grad():  # f_trd once more, where the integration ended
-                later = self.query_dynamics(means.detach(), t)
+                later = self.query_dynamics(means.detach(), t, rates=False)  # it reads velocities
             gap = acceleration_consistency(params, later, t - t_prime)
             if rows is not None:  # a mean over all Gaussians: the static ones' gap is zero
                 gap = gap * (rows.numel() / x_start.shape[0])
