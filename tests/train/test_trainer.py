@@ -43,6 +43,7 @@ ABLATIONS = [
     {"deformation__kind": "hexplane"},
     {"bf16": True},
     {"dynamic__acceleration_consistency": 0.0, "dynamics__detach_acceleration_features": False},
+    {"dynamics__acceleration_depth": 0, "dynamics__detach_acceleration_features": True},
     {"dynamic__rotation_consistency": 0.01, "dynamic__skip_static": 0.0},
     {"dynamic__skip_static": 0.5},
     {"method": "defgs", "dynamic__skip_static": 0.5},
@@ -177,26 +178,35 @@ def test_straight_through_at_t_prime_is_exact(tiny_scene, tmp_path):
     torch.testing.assert_close(other.training_state(0.25, 0.5)[0]["means"].detach(), physics)
 
 
-def test_acceleration_consistency_trains_only_the_acceleration_head(tiny_scene, tmp_path):
-    """The step's extra loss is named "acceleration"; with the features' gradient stopped it reaches
-    the acceleration rows of f_trd's head and nothing else (not the velocities, f_defo, the Gaussians)."""
+@pytest.mark.parametrize("depth", [0, 2], ids=["shared head, detached", "own MLP"])
+def test_acceleration_consistency_trains_only_the_accelerations(tiny_scene, tmp_path, depth):
+    """The step's extra loss is named "acceleration"; it reaches the accelerations' own parameters and
+    nothing else (not the velocities, f_defo, the Gaussians): with the shared head and the features'
+    gradient stopped, the head's acceleration rows; with ``acceleration_depth``, their own MLP."""
     off = _perturbed_model(tiny_scene, tmp_path / "off", dynamic__acceleration_consistency=0.0)
     assert off.training_state(0.25, 0.5)[1] == {}
     model = _perturbed_model(
         tiny_scene,
         tmp_path / "on",
         dynamic__acceleration_consistency=0.5,
-        dynamics__detach_acceleration_features=True,
+        dynamics__detach_acceleration_features=depth == 0,
+        dynamics__acceleration_depth=depth,
     )
     _, losses = model.training_state(0.25, 0.5)
     assert set(losses) == {"acceleration"} and losses["acceleration"] > 0
     losses["acceleration"].backward()
     field = model.dynamics
-    rows = torch.zeros(field.head.weight.shape[0], dtype=torch.bool)
-    for name in ("acceleration", "angular_acceleration"):
-        rows[field.slices[name]] = True
-    assert field.head.weight.grad[rows].abs().sum() > 0
-    assert field.head.weight.grad[~rows].abs().sum() == 0
+    assert field.separate_accelerations == (depth > 0)
+    if field.separate_accelerations:
+        trained = [*field.acceleration_mlp.parameters(), *field.acceleration_head.parameters()]
+        assert all(p.grad.abs().sum() > 0 for p in trained)
+        assert field.head.weight.grad is None or field.head.weight.grad.abs().sum() == 0
+    else:
+        rows = torch.zeros(field.head.weight.shape[0], dtype=torch.bool)
+        for name in ("acceleration", "angular_acceleration"):
+            rows[field.slices[name]] = True
+        assert field.head.weight.grad[rows].abs().sum() > 0
+        assert field.head.weight.grad[~rows].abs().sum() == 0
     others = [*field.mlp.parameters(), *model.deformation.parameters(), *model.gaussians.values()]
     assert all(p.grad is None or p.grad.abs().sum() == 0 for p in others)
 
