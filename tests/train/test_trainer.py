@@ -362,6 +362,17 @@ def test_skip_static_moves_only_the_moving_gaussians_and_those_exactly(tiny_scen
     assert all(x is None or not x.any() for x in grads[1:])
 
 
+def test_a_scene_marked_static_everywhere_trains_without_the_fields(tiny_scene, tmp_path):
+    """Every Gaussian marked static (a still scene): the step renders the canonical Gaussians, and the
+    acceleration consistency, a mean over no moving particle, is left out rather than NaN."""
+    model = _perturbed_model(tiny_scene, tmp_path / "a", dynamic__acceleration_consistency=0.5)
+    g = model.gaussians
+    model.set_static_mask(torch.ones(g["means"].shape[0], dtype=torch.bool))
+    state, losses = model.training_state(0.25, 0.5)
+    assert losses == {}
+    assert torch.equal(state["means"], g["means"]) and torch.equal(state["quats"], g["quats"])
+
+
 def test_skip_static_marks_by_displacement_and_is_kept_in_the_checkpoint(tiny_scene, tmp_path):
     model = _perturbed_model(tiny_scene, tmp_path / "a")
     most = model.max_displacement(0.5, 16)
@@ -454,6 +465,7 @@ def test_a_bf16_run_is_rendered_in_fp32_on_cpus_without_amx(tiny_scene, tmp_path
     monkeypatch.setattr(trainer, "cpu_has_amx_bf16", lambda: amx)
     model, loaded, meta = load_run(tmp_path / "run", device="cpu")
     assert loaded.bf16 and model.bf16 == amx
+    model.set_static_mask(None)  # the fields see every Gaussian, whatever the short run marked static
     with torch.no_grad():  # fields that move the Gaussians (the heads start at zero)
         for param in model.field_parameters():
             param.add_(0.05 * torch.randn_like(param))

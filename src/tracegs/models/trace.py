@@ -227,7 +227,8 @@ class TraceModel(nn.Module):
         means, quats = integrate(x_run, q_run, params, t - t_prime, self.dt_max, method=dyn.integrator)[:2]
         losses = {}
         learns_accelerations = self.cfg.dynamics.order >= 2 and dyn.physics_derivation
-        if dyn.acceleration_consistency > 0 and learns_accelerations and t != t_prime:
+        # (not when every Gaussian is marked static: a mean over no particles is NaN)
+        if dyn.acceleration_consistency > 0 and learns_accelerations and t != t_prime and len(x_run):
             with torch.no_grad():  # f_trd once more, where the integration ended
                 later = self.query_dynamics(means.detach(), t, rates=False)  # it reads velocities
             gap = acceleration_consistency(params, later, t - t_prime)
