@@ -154,6 +154,7 @@ OPTIONS = {
         "dynamics__acceleration_depth": 0,
         "dynamics__detach_acceleration_features": True,
     },
+    "angular acceleration penalty": {"dynamic__angular_acceleration_penalty": 0.005},
 }
 
 

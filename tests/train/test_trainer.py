@@ -211,6 +211,46 @@ def test_acceleration_consistency_trains_only_the_accelerations(tiny_scene, tmp_
     assert all(p.grad is None or p.grad.abs().sum() == 0 for p in others)
 
 
+def test_angular_acceleration_penalty_is_the_weighted_mean_size_and_shrinks_it(tiny_scene, tmp_path):
+    """The step's "angular_acceleration" loss is its weight times the mean |eps| of the particles f_trd
+    moves (a mean over all Gaussians, as the consistency's); its gradient reaches the accelerations' own
+    MLP and nothing else, and descending it shrinks the angular accelerations while the velocities
+    and the linear accelerations' role stay untouched."""
+    weight = 0.5
+    model = _perturbed_model(
+        tiny_scene,
+        tmp_path / "on",
+        dynamic__acceleration_consistency=0.0,
+        dynamic__angular_acceleration_penalty=weight,
+        dynamics__acceleration_depth=2,
+    )
+    _, losses = model.training_state(0.25, 0.5)
+    assert set(losses) == {"angular_acceleration"}
+    with torch.no_grad():
+        x = model.deform(0.25)["means"]
+        rows = model._moving_rows()
+        moving = x if rows is None else x[rows]
+        eps = model.query_dynamics(moving, 0.25).angular_acceleration
+        want = weight * eps.abs().mean() * (len(moving) / len(x))
+    torch.testing.assert_close(losses["angular_acceleration"].detach(), want)
+    losses["angular_acceleration"].backward()
+    field = model.dynamics
+    assert all(p.grad.abs().sum() > 0 for p in field.acceleration_head.parameters())
+    others = [*field.mlp.parameters(), *field.head.parameters(), *model.deformation.parameters()]
+    assert all(p.grad is None or p.grad.abs().sum() == 0 for p in [*others, *model.gaussians.values()])
+    velocities = model.query_dynamics(moving, 0.25).velocity.detach()
+    optimizer = torch.optim.Adam(
+        [*field.acceleration_mlp.parameters(), *field.acceleration_head.parameters()], lr=1e-2
+    )
+    for _ in range(30):
+        optimizer.zero_grad()
+        model.training_state(0.25, 0.5)[1]["angular_acceleration"].backward()
+        optimizer.step()
+    after = model.query_dynamics(moving, 0.25)
+    assert after.angular_acceleration.abs().mean() < 0.2 * eps.abs().mean()
+    torch.testing.assert_close(after.velocity, velocities)
+
+
 def test_rotation_consistency_trains_only_the_dynamics_field(tiny_scene, tmp_path):
     """The step's "rotation" loss fits rigid motions over canonical nearest neighbours: its gradient
     reaches f_trd, not f_defo or the Gaussians, and the neighbours are the nearest ones, found again

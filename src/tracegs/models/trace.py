@@ -204,7 +204,7 @@ class TraceModel(nn.Module):
         self, t_prime: float, t: float, physics: bool = True
     ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
         """Gaussians for rendering frame ``t`` in stage 2 (METHOD.md, Training), and the step's
-        weighted auxiliary losses by name (``acceleration`` and ``rotation``, when their
+        weighted auxiliary losses by name (``acceleration``, ``angular_acceleration`` and ``rotation``, when their
         ``dynamic.*_consistency`` weights are set).
 
         TRACE: deform to t', query f_trd at (x_t', t'), integrate t' -> t, and pass f_defo's gradient
@@ -235,6 +235,11 @@ class TraceModel(nn.Module):
             if rows is not None:  # a mean over all Gaussians: the static ones' gap is zero
                 gap = gap * (rows.numel() / x_start.shape[0])
             losses["acceleration"] = dyn.acceleration_consistency * gap
+        if dyn.angular_acceleration_penalty > 0 and learns_accelerations and len(x_run):
+            size = params.angular_acceleration.abs().mean()
+            if rows is not None:  # a mean over all Gaussians, as the consistency's
+                size = size * (rows.numel() / x_start.shape[0])
+            losses["angular_acceleration"] = dyn.angular_acceleration_penalty * size
         if dyn.rotation_consistency > 0:
             gap = rotation_consistency(params, x_start, self.canonical_neighbours())  # detaches x itself
             losses["rotation"] = dyn.rotation_consistency * gap
