@@ -68,10 +68,8 @@ def report(run: Path) -> None:
         print(f"{run}: no f_trd (DefGS)")
     else:
         field = model.dynamics
-        if field.separate_accelerations:  # its own head: a_bar first
-            head = field.acceleration_head.weight[:3]
-        else:
-            head = field.head.weight[field.slices["acceleration"]]
+        own = "acceleration" in field.own_names  # from the accelerations' own MLP
+        head = (field.acceleration_head if own else field.head).weight[field.head_rows("acceleration")]
         print(f"{run}: acceleration head mean |w| {head.abs().mean().item():.4f}")
     for t in (0.2, 0.4, 0.6, model.handover_time(t_max)):
         means, owner = _parts_at(model, t, t_max, gt, 0.03)

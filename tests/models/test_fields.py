@@ -329,6 +329,44 @@ def test_accelerations_from_their_own_mlp(order):
     assert first_layer(field.acceleration_mlp).grad.abs().sum() > 0
 
 
+@pytest.mark.parametrize("order", [2, 3])
+def test_angular_accelerations_from_the_shared_head(order):
+    """``angular_accelerations_from_head``: the own MLP gives the linear acceleration (and jerk), the
+    shared head the velocities and, from its features with their gradient stopped, the angular rates;
+    a loss on the rates trains the own MLP and the head's angular rows, nothing the velocities are
+    read from."""
+    torch.manual_seed(0)
+    cfg = dynamics_config(
+        order=order,
+        acceleration_depth=2,
+        angular_accelerations_from_head=True,
+        detach_acceleration_features=True,
+    )
+    field = DynamicsField(cfg)
+    assert (
+        field.head_names
+        == ["velocity", "angular_velocity", "angular_acceleration", "angular_jerk"][: order + 1]
+    )
+    assert field.own_names == ["acceleration", "jerk"][: order - 1]
+    assert field.head.out_features == 3 * (order + 1)
+    assert field.acceleration_head.out_features == 3 * (order - 1)
+    x = points()
+    params = field(x, 0.4)
+    assert (params.velocity == 0).all() and (params.angular_velocity == 0).all()
+    assert 0 < params.angular_acceleration.abs().max() < 1e-3
+    own = field.acceleration_head(field.acceleration_mlp(field.encode(x, 0.4)))
+    head = field.head(field.mlp(field.encode(x, 0.4)))
+    torch.testing.assert_close(params.acceleration, own[:, :3] * own[:, :3].abs() / 10)
+    torch.testing.assert_close(params.angular_acceleration, head[:, 6:9] * head[:, 6:9].abs() / 10)
+    if order == 3:
+        torch.testing.assert_close(params.jerk, own[:, 3:6] * own[:, 3:6].abs() / 10)
+        torch.testing.assert_close(params.angular_jerk, head[:, 9:12] * head[:, 9:12].abs() / 10)
+    (params.acceleration.sum() + params.angular_acceleration.sum()).backward()
+    assert all(p.grad is None or (p.grad == 0).all() for p in field.mlp.parameters())
+    assert (field.head.weight.grad[:6] == 0).all() and field.head.weight.grad[6:9].abs().sum() > 0
+    assert first_layer(field.acceleration_mlp).grad.abs().sum() > 0
+
+
 def test_light_preset():
     cfg = DynamicsConfig.light()
     assert (cfg.depth, cfg.width, cfg.num_frequencies) == (6, 128, 3)

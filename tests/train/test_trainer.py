@@ -178,19 +178,27 @@ def test_straight_through_at_t_prime_is_exact(tiny_scene, tmp_path):
     torch.testing.assert_close(other.training_state(0.25, 0.5)[0]["means"].detach(), physics)
 
 
-@pytest.mark.parametrize("depth", [0, 2], ids=["shared head, detached", "own MLP"])
-def test_acceleration_consistency_trains_only_the_accelerations(tiny_scene, tmp_path, depth):
+@pytest.mark.parametrize(
+    "depth, angular_from_head",
+    [(0, False), (2, False), (2, True)],
+    ids=["shared head, detached", "own MLP", "own MLP, angular from the head"],
+)
+def test_acceleration_consistency_trains_only_the_accelerations(
+    tiny_scene, tmp_path, depth, angular_from_head
+):
     """The step's extra loss is named "acceleration"; it reaches the accelerations' own parameters and
     nothing else (not the velocities, f_defo, the Gaussians): with the shared head and the features'
-    gradient stopped, the head's acceleration rows; with ``acceleration_depth``, their own MLP."""
+    gradient stopped, the head's acceleration rows; with ``acceleration_depth``, their own MLP (and,
+    with ``angular_accelerations_from_head``, the head's angular rows)."""
     off = _perturbed_model(tiny_scene, tmp_path / "off", dynamic__acceleration_consistency=0.0)
     assert off.training_state(0.25, 0.5)[1] == {}
     model = _perturbed_model(
         tiny_scene,
         tmp_path / "on",
         dynamic__acceleration_consistency=0.5,
-        dynamics__detach_acceleration_features=depth == 0,
+        dynamics__detach_acceleration_features=depth == 0 or angular_from_head,
         dynamics__acceleration_depth=depth,
+        dynamics__angular_accelerations_from_head=angular_from_head,
     )
     _, losses = model.training_state(0.25, 0.5)
     assert set(losses) == {"acceleration"} and losses["acceleration"] > 0
@@ -200,13 +208,14 @@ def test_acceleration_consistency_trains_only_the_accelerations(tiny_scene, tmp_
     if field.separate_accelerations:
         trained = [*field.acceleration_mlp.parameters(), *field.acceleration_head.parameters()]
         assert all(p.grad.abs().sum() > 0 for p in trained)
-        assert field.head.weight.grad is None or field.head.weight.grad.abs().sum() == 0
-    else:
-        rows = torch.zeros(field.head.weight.shape[0], dtype=torch.bool)
-        for name in ("acceleration", "angular_acceleration"):
-            rows[field.slices[name]] = True
-        assert field.head.weight.grad[rows].abs().sum() > 0
-        assert field.head.weight.grad[~rows].abs().sum() == 0
+    rows = torch.zeros(field.head.weight.shape[0], dtype=torch.bool)
+    for name in set(field.head_names) & {"acceleration", "angular_acceleration"}:
+        rows[field.head_rows(name)] = True
+    grad = (
+        field.head.weight.grad if field.head.weight.grad is not None else torch.zeros_like(field.head.weight)
+    )
+    assert grad[rows].abs().sum() > 0 or not rows.any()
+    assert grad[~rows].abs().sum() == 0
     others = [*field.mlp.parameters(), *model.deformation.parameters(), *model.gaussians.values()]
     assert all(p.grad is None or p.grad.abs().sum() == 0 for p in others)
 

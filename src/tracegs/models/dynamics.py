@@ -66,7 +66,13 @@ class DynamicsConfig:
     """0: the accelerations (and jerks) are read from the velocities' MLP by the shared head. > 0:
     they have their own MLP of this many hidden layers (width ``width``) on the same encoding, so that
     they can follow time as the velocities do while a loss on them cannot bend the velocities'
-    features (docs/PHYSICS.md); ``detach_acceleration_features`` then has nothing to detach."""
+    features (docs/PHYSICS.md); ``detach_acceleration_features`` then applies to the rates the shared
+    head still gives (``angular_accelerations_from_head``)."""
+    angular_accelerations_from_head: bool = False
+    """With ``acceleration_depth`` > 0: the own MLP gives the linear acceleration (and jerk) only, and
+    the angular ones are read from the velocities' features by the shared head, as without it. The
+    angular rates of a body that spins steadily are its w's slope in time, which an MLP of their own
+    follows into the wiggles of the fitted w at the end of the training span (docs/PHYSICS.md)."""
 
     @classmethod
     def light(cls, **overrides) -> DynamicsConfig:
@@ -116,19 +122,32 @@ class DynamicsField(nn.Module):
         self.register_buffer("position_columns", torch.nonzero(channel != 3)[:, 0], persistent=False)
         self.register_buffer("time_columns", torch.nonzero(channel == 3)[:, 0], persistent=False)
         self.mlp = hidden_layers(in_dim, cfg.depth, cfg.width, cfg.activation)
-        # the slices the shared head gives; with ``acceleration_depth`` the rest come from their own MLP
-        rates = [n for n in self.slices if n in ACCELERATIONS]
-        shared = len(self.slices) - (len(rates) if cfg.acceleration_depth > 0 else 0)
-        self.head = nn.Linear(cfg.width, 3 * shared)
-        if cfg.acceleration_depth > 0 and rates:
+        # which outputs the shared head gives, in ``slices`` order; with ``acceleration_depth`` the
+        # rates (all, or the linear ones) come from an MLP of their own instead
+        own = []
+        if cfg.acceleration_depth > 0:
+            angular = ("angular_acceleration", "angular_jerk") if cfg.angular_accelerations_from_head else ()
+            own = [n for n in self.slices if n in ACCELERATIONS and n not in angular]
+        self.head_names = [n for n in self.slices if n not in own]
+        self.own_names = own
+        self.head = nn.Linear(cfg.width, 3 * len(self.head_names))
+        if own:
             self.acceleration_mlp = hidden_layers(in_dim, cfg.acceleration_depth, cfg.width, cfg.activation)
-            self.acceleration_head = nn.Linear(cfg.width, 3 * len(rates))
+            self.acceleration_head = nn.Linear(cfg.width, 3 * len(own))
         self._init_head()
 
     @property
     def separate_accelerations(self) -> bool:
-        """Whether the accelerations (and jerks) have their own MLP (``acceleration_depth``)."""
+        """Whether the accelerations (and jerks; all, or the linear ones) have their own MLP
+        (``acceleration_depth``)."""
         return hasattr(self, "acceleration_mlp")
+
+    def head_rows(self, name: str) -> slice:
+        """The rows of ``head`` (or, for a rate of the own MLP, of ``acceleration_head``) that give
+        the named output."""
+        names = self.head_names if name in self.head_names else self.own_names
+        i = names.index(name)
+        return slice(3 * i, 3 * i + 3)
 
     @torch.no_grad()
     def _init_head(self) -> None:
@@ -137,10 +156,9 @@ class DynamicsField(nn.Module):
         if self.separate_accelerations:
             nn.init.normal_(self.acceleration_head.weight, std=self.cfg.acceleration_init_std)
             nn.init.zeros_(self.acceleration_head.bias)
-            return
         for name in ACCELERATIONS:
-            if name in self.slices:
-                nn.init.normal_(self.head.weight[self.slices[name]], std=self.cfg.acceleration_init_std)
+            if name in self.head_names:
+                nn.init.normal_(self.head.weight[self.head_rows(name)], std=self.cfg.acceleration_init_std)
 
     def encode(self, x: torch.Tensor, t: float | torch.Tensor) -> torch.Tensor:
         """The encoded 4-vector (x, y, z, t) [N, E]: one L for all four channels, or the positions'
@@ -182,15 +200,16 @@ class DynamicsField(nn.Module):
         first = linear_of_parts(self.mlp[0], parts)
         features = self.mlp[2:](self.mlp[1](first))
         raw = self.head(features)
+        head_rates = [n for n in self.head_names if n in ACCELERATIONS]
+        if rates and head_rates and self.cfg.detach_acceleration_features:
+            start = self.head_rows(head_rates[0]).start  # the rates are the head's last rows
+            raw = torch.cat([raw[:, :start], self.head(features.detach())[:, start:]], dim=-1)
+        named = {n: raw[:, self.head_rows(n)] for n in self.head_names if rates or n not in ACCELERATIONS}
         if rates and self.separate_accelerations:
             mlp = self.acceleration_mlp
-            first = linear_of_parts(mlp[0], parts)
-            raw = torch.cat([raw, self.acceleration_head(mlp[2:](mlp[1](first)))], dim=-1)
-        elif rates and self.cfg.detach_acceleration_features and self.cfg.order >= 2:
-            first = self.slices["acceleration"].start
-            raw = torch.cat([raw[:, :first], self.head(features.detach())[:, first:]], dim=-1)
-        raw = raw.to(x.dtype)
-        out = {name: raw[:, s] for name, s in self.slices.items() if rates or name not in ACCELERATIONS}
+            own = self.acceleration_head(mlp[2:](mlp[1](linear_of_parts(mlp[0], parts))))
+            named |= {n: own[:, self.head_rows(n)] for n in self.own_names}
+        out = {name: named[name].to(x.dtype) for name in self.slices if name in named}
         for name in ACCELERATIONS:
             if name in out:
                 out[name] = scale_acceleration(out[name], self.cfg.acceleration_scale)
