@@ -232,6 +232,7 @@ def test_angular_acceleration_penalty_is_the_weighted_mean_size_and_shrinks_it(t
         dynamic__acceleration_consistency=0.0,
         dynamic__angular_acceleration_penalty=weight,
         dynamics__acceleration_depth=2,
+        dynamics__angular_accelerations_from_head=False,
     )
     _, losses = model.training_state(0.25, 0.5)
     assert set(losses) == {"angular_acceleration"}
