@@ -150,6 +150,10 @@ OPTIONS = {
     "budget 14k until 8000": {"densify__max_gaussians": 14_000, "densify__refine_stop": 8000},
     "field lr final 1.6e-5": {"optim__field_lr_final": 1.6e-5},
     "accelerations own MLP": {"dynamics__acceleration_depth": 2},
+    "all rates from the own MLP": {
+        "dynamics__angular_accelerations_from_head": False,
+        "dynamics__detach_acceleration_features": False,
+    },
     "accelerations shared head": {
         "dynamics__acceleration_depth": 0,
         "dynamics__detach_acceleration_features": True,

@@ -240,9 +240,17 @@ def cpu_fast() -> TrainConfig:
         # The accelerations from an MLP of their own (2 x 64 on the same encoding): they can follow
         # time where the shared features cannot; validation future +2.25 / +0.84 / +0.11 / -0.53 / -0.72 dB
         # on fallingball / fan / foldingchair / slider / satellite (docs/PHYSICS.md, "The accelerations
-        # from their own MLP")
+        # from their own MLP"). The angular ones from the shared head (features' gradient stopped): the
+        # own MLP followed the fitted spin's end-of-span drift; fan +0.36 dB over the test split's
+        # horizon, foldingchair 33.19 against 32.62 (docs/PHYSICS.md, "The angular rates from the head")
         dynamics=DynamicsConfig(
-            depth=4, width=64, num_frequencies=6, time_frequencies=3, acceleration_depth=2
+            depth=4,
+            width=64,
+            num_frequencies=6,
+            time_frequencies=3,
+            acceleration_depth=2,
+            angular_accelerations_from_head=True,
+            detach_acceleration_features=True,
         ),
         # the fields skip the Gaussians that have not moved by the end of densification: 25-33% less
         # time per step where half to three quarters of a scene stands still (docs/DESIGN.md)

@@ -44,6 +44,7 @@ ABLATIONS = [
     {"bf16": True},
     {"dynamic__acceleration_consistency": 0.0, "dynamics__detach_acceleration_features": False},
     {"dynamics__acceleration_depth": 0, "dynamics__detach_acceleration_features": True},
+    {"dynamics__angular_accelerations_from_head": False, "dynamics__detach_acceleration_features": False},
     {"dynamic__rotation_consistency": 0.01, "dynamic__skip_static": 0.0},
     {"dynamic__skip_static": 0.5},
     {"method": "defgs", "dynamic__skip_static": 0.5},
