@@ -82,12 +82,11 @@ class DynamicStageConfig:
     the photometric loss alone to learn it (docs/PHYSICS.md)."""
     angular_acceleration_penalty: float = 0.0
     """Weight of the mean |eps| of f_trd's angular accelerations (per component; a rotation rate, the
-    same in the fields' frame and the world's), added to the step's loss. A particle's angular motion
-    is free wherever a translation can render the same (a static or translating part: v_bar = -w x x
-    cancels any w), and there f_trd's w drifts in time; ``acceleration_consistency`` then teaches eps
-    that drift, which the second-order extrapolation turns into errors growing with the horizon. An L1
-    weight below ``acceleration_consistency`` leaves an angular acceleration that the velocity field
-    asks for consistently where it is, and pulls the inconsistent ones to zero (docs/PHYSICS.md). 0 = off."""
+    same in the fields' frame and the world's), added to the step's loss: an L1 prior towards no
+    angular acceleration. Below ``acceleration_consistency``'s weight it leaves an angular acceleration
+    that the velocity field asks for consistently where it is and pulls the inconsistent ones to zero.
+    Written against the spurious angular accelerations of a fan's blades and not measured (those came
+    from a consistent drift; docs/PHYSICS.md). 0 = off."""
     rotation_consistency: float = 0.0
     """Weight of a loss that pulls each particle's angular velocity w towards the rotation of the rigid
     motion that best fits its neighbours' velocities (``physics.integrate.rotation_consistency``): a

@@ -204,8 +204,8 @@ class TraceModel(nn.Module):
         self, t_prime: float, t: float, physics: bool = True
     ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
         """Gaussians for rendering frame ``t`` in stage 2 (METHOD.md, Training), and the step's
-        weighted auxiliary losses by name (``acceleration``, ``angular_acceleration`` and ``rotation``, when their
-        ``dynamic.*_consistency`` weights are set).
+        weighted auxiliary losses by name (``acceleration``, ``angular_acceleration`` and ``rotation``,
+        when their weights in ``dynamic`` are set).
 
         TRACE: deform to t', query f_trd at (x_t', t'), integrate t' -> t, and pass f_defo's gradient
         straight through to the rendered position (that of f_defo(t') by default, see
