@@ -2,7 +2,7 @@
 (accelerations, angular accelerations, jerks) set to zero at render time, the run unchanged.
 Tells which learned rate a future's error comes from (docs/PHYSICS.md, "The accelerations from their
 own MLP").
-Usage: .venv/bin/python benchmarks/without_rates.py [--future-end 0.7627] [--zero angular_acceleration]
+Usage: .venv/bin/python benchmarks/without_rates.py [--future-end 0.7627] [--zero NAME ... --]
     [--spin-above W | --spin-below W] RUN ...
 (--spin-above / --spin-below: zero them only where f_trd's |w| is above / at most W, e.g. a fan's
 blades against its body.)
