@@ -130,6 +130,8 @@ class DynamicsField(nn.Module):
             own = [n for n in self.slices if n in ACCELERATIONS and n not in angular]
         self.head_names = [n for n in self.slices if n not in own]
         self.own_names = own
+        head_rates = [n for n in self.head_names if n in ACCELERATIONS]  # the head's last rows
+        self._head_rates_start = 3 * self.head_names.index(head_rates[0]) if head_rates else None
         self.head = nn.Linear(cfg.width, 3 * len(self.head_names))
         if own:
             self.acceleration_mlp = hidden_layers(in_dim, cfg.acceleration_depth, cfg.width, cfg.activation)
@@ -140,7 +142,7 @@ class DynamicsField(nn.Module):
     def separate_accelerations(self) -> bool:
         """Whether the accelerations (and jerks; all, or the linear ones) have their own MLP
         (``acceleration_depth``)."""
-        return hasattr(self, "acceleration_mlp")
+        return bool(self.own_names)
 
     def head_rows(self, name: str) -> slice:
         """The rows of ``head`` (or, for a rate of the own MLP, of ``acceleration_head``) that give
@@ -200,9 +202,8 @@ class DynamicsField(nn.Module):
         first = linear_of_parts(self.mlp[0], parts)
         features = self.mlp[2:](self.mlp[1](first))
         raw = self.head(features)
-        head_rates = [n for n in self.head_names if n in ACCELERATIONS]
-        if rates and head_rates and self.cfg.detach_acceleration_features:
-            start = self.head_rows(head_rates[0]).start  # the rates are the head's last rows
+        start = self._head_rates_start
+        if rates and start is not None and self.cfg.detach_acceleration_features:
             raw = torch.cat([raw[:, :start], self.head(features.detach())[:, start:]], dim=-1)
         named = {n: raw[:, self.head_rows(n)] for n in self.head_names if rates or n not in ACCELERATIONS}
         if rates and self.separate_accelerations:

@@ -226,20 +226,17 @@ class TraceModel(nn.Module):
         params = self.query_dynamics(x_run, query_time)
         means, quats = integrate(x_run, q_run, params, t - t_prime, self.dt_max, method=dyn.integrator)[:2]
         losses = {}
+        share = 1.0 if rows is None else rows.numel() / x_start.shape[0]  # a mean over all Gaussians
         learns_accelerations = self.cfg.dynamics.order >= 2 and dyn.physics_derivation
         # (not when every Gaussian is marked static: a mean over no particles is NaN)
         if dyn.acceleration_consistency > 0 and learns_accelerations and t != t_prime and len(x_run):
             with torch.no_grad():  # f_trd once more, where the integration ended
                 later = self.query_dynamics(means.detach(), t, rates=False)  # it reads velocities
-            gap = acceleration_consistency(params, later, t - t_prime)
-            if rows is not None:  # a mean over all Gaussians: the static ones' gap is zero
-                gap = gap * (rows.numel() / x_start.shape[0])
-            losses["acceleration"] = dyn.acceleration_consistency * gap
+            gap = acceleration_consistency(params, later, t - t_prime)  # the static ones' gap is zero
+            losses["acceleration"] = dyn.acceleration_consistency * share * gap
         if dyn.angular_acceleration_penalty > 0 and learns_accelerations and len(x_run):
             size = params.angular_acceleration.abs().mean()
-            if rows is not None:  # a mean over all Gaussians, as the consistency's
-                size = size * (rows.numel() / x_start.shape[0])
-            losses["angular_acceleration"] = dyn.angular_acceleration_penalty * size
+            losses["angular_acceleration"] = dyn.angular_acceleration_penalty * share * size
         if dyn.rotation_consistency > 0:
             gap = rotation_consistency(params, x_start, self.canonical_neighbours())  # detaches x itself
             losses["rotation"] = dyn.rotation_consistency * gap
