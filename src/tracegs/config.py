@@ -116,17 +116,6 @@ class DynamicStageConfig:
     velocity is whatever the field's smoothness gives, and the physics would slide such a Gaussian
     (under a surface) into view; unseen Gaussians that f_trd moves as f_defo did (inside a moving
     object) move on. Not in the paper; 0 = off. Render time only (docs/PHYSICS.md)."""
-    hold_unexplained: float = 0.0
-    """After the handover, keep where they are the Gaussians whose own past f_trd does not explain:
-    integrated backward from the handover over ``past_window``, f_trd's motion must end within this
-    many times f_defo's displacement over that window (plus a floor of 0.02 scene units) of where
-    f_defo put the Gaussian. A rigid part's learned physics retraces its past as well as it predicts its
-    future; a Gaussian that f_defo moves along a path no rigid motion follows (one that paints a moving
-    shadow or a reflection onto a still surface) does not, and its learned velocity and acceleration
-    carry it off that surface (docs/PHYSICS.md). Not in the paper; 0 = off. Render time only."""
-    past_window: float = 0.4
-    """The stretch before the handover that ``hold_unexplained`` integrates back over, as a fraction of
-    the handover time (about the test split's horizon for data that ends at 0.75)."""
     freeze_static_threshold: float = 0.0
     """Gaussians whose deformation stays below this displacement (scene units) are frozen when
     extrapolating (0 = off). Used when ``freeze_static_auto`` is off."""

@@ -303,9 +303,6 @@ class TraceModel(nn.Module):
             # f_trd was never shown them
             held = unseen & ~self._fields_agree(t0, means, params, dyn.hold_unseen)
             moving = ~held if moving is None else moving & ~held
-        if dyn.hold_unexplained > 0 and self.deformation is not None and t0 > 0:
-            held = ~self._explains_past(t0, means, quats, params)
-            moving = ~held if moving is None else moving & ~held
         span = t - t0
         n = max(1, math.ceil(abs(span) / self.dt_max - 1e-9))
         h = span / n
@@ -338,21 +335,6 @@ class TraceModel(nn.Module):
         )
         speed_phys = particle_velocity(means, params.velocity, params.angular_velocity).norm(dim=-1)
         return speed_phys <= ratio * (speed_defo + 0.05 * float(self.field_scale))
-
-    def _explains_past(
-        self, t0: float, means: torch.Tensor, quats: torch.Tensor, params: DynamicsParams
-    ) -> torch.Tensor:
-        """[N] bool: f_trd's dynamics at ``t0``, integrated backward over ``dynamic.past_window`` of the
-        time before ``t0``, end within ``dynamic.hold_unexplained`` times f_defo's displacement over that
-        stretch (plus a floor of 0.02 scene units in the fields' frame) of where f_defo put the Gaussian
-        at its start: the learned physics retraces the Gaussian's observed past."""
-        dyn = self.cfg.dynamic
-        window = dyn.past_window * t0
-        before = self.deform(t0 - window)["means"]
-        retraced = integrate(means, quats, params, -window, self.dt_max, dyn.integrator)[0]
-        displacement = (means - before).norm(dim=-1)
-        miss = (retraced - before).norm(dim=-1)
-        return miss <= dyn.hold_unexplained * (displacement + 0.02 * float(self.field_scale))
 
     @torch.no_grad()
     def moving_mask(self, t_max: float, threshold: float, samples: int = 8) -> torch.Tensor:
