@@ -116,15 +116,6 @@ class DynamicStageConfig:
     velocity is whatever the field's smoothness gives, and the physics would slide such a Gaussian
     (under a surface) into view; unseen Gaussians that f_trd moves as f_defo did (inside a moving
     object) move on. Not in the paper; 0 = off. Render time only (docs/PHYSICS.md)."""
-    hold_isolated: float = 0.0
-    """After the handover, keep where they are the moving Gaussians at least this fraction of whose
-    ``isolation_neighbours`` nearest Gaussians stand still (frozen, marked static or held). Bodies move
-    as wholes; a few Gaussians that f_defo moves across a still surface draw something other than a
-    body's motion (the shadow a moving part casts onto it, a highlight), and the physics would carry
-    them off that surface (`fan`: the blades' shadow on the base; docs/PHYSICS.md). Not in the paper;
-    0 = off. Render time only."""
-    isolation_neighbours: int = 16
-    """Nearest Gaussians (at the handover) that ``hold_isolated`` counts."""
     freeze_static_threshold: float = 0.0
     """Gaussians whose deformation stays below this displacement (scene units) are frozen when
     extrapolating (0 = off). Used when ``freeze_static_auto`` is off."""

@@ -303,8 +303,6 @@ class TraceModel(nn.Module):
             # f_trd was never shown them
             held = unseen & ~self._fields_agree(t0, means, params, dyn.hold_unseen)
             moving = ~held if moving is None else moving & ~held
-        if dyn.hold_isolated > 0 and moving is not None:
-            moving = moving & ~self._isolated(means, moving)
         span = t - t0
         n = max(1, math.ceil(abs(span) / self.dt_max - 1e-9))
         h = span / n
@@ -337,19 +335,6 @@ class TraceModel(nn.Module):
         )
         speed_phys = particle_velocity(means, params.velocity, params.angular_velocity).norm(dim=-1)
         return speed_phys <= ratio * (speed_defo + 0.05 * float(self.field_scale))
-
-    def _isolated(self, means: torch.Tensor, moving: torch.Tensor) -> torch.Tensor:
-        """[N] bool: the moving Gaussians at least ``dynamic.hold_isolated`` of whose
-        ``dynamic.isolation_neighbours`` nearest Gaussians (at ``means``) do not move."""
-        dyn = self.cfg.dynamic
-        rows = moving.nonzero().squeeze(1)
-        isolated = torch.zeros_like(moving)
-        k = min(dyn.isolation_neighbours, means.shape[0] - 1)
-        if k < 1 or rows.numel() in (0, means.shape[0]):
-            return isolated
-        neighbours = nearest_neighbours(means, k, of=rows)[1]
-        isolated[rows] = (~moving)[neighbours].float().mean(-1) >= dyn.hold_isolated
-        return isolated
 
     @torch.no_grad()
     def moving_mask(self, t_max: float, threshold: float, samples: int = 8) -> torch.Tensor:

@@ -340,8 +340,6 @@ AFTER_TRAINING = frozenset(
         "dynamic.handover_frames",
         "dynamic.extrapolation_requery",
         "dynamic.hold_unseen",
-        "dynamic.hold_isolated",
-        "dynamic.isolation_neighbours",
         "dynamic.freeze_static_threshold",
         "dynamic.freeze_static_auto",
     }
