@@ -131,7 +131,7 @@ class DynamicsField(nn.Module):
         self.head_names = [n for n in self.slices if n not in own]
         self.own_names = own
         head_rates = [n for n in self.head_names if n in ACCELERATIONS]  # the head's last rows
-        self._head_rates_start = 3 * self.head_names.index(head_rates[0]) if head_rates else None
+        self._head_rates_start = self.head_rows(head_rates[0]).start if head_rates else None
         self.head = nn.Linear(cfg.width, 3 * len(self.head_names))
         if own:
             self.acceleration_mlp = hidden_layers(in_dim, cfg.acceleration_depth, cfg.width, cfg.activation)
