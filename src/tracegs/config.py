@@ -116,6 +116,16 @@ class DynamicStageConfig:
     velocity is whatever the field's smoothness gives, and the physics would slide such a Gaussian
     (under a surface) into view; unseen Gaussians that f_trd moves as f_defo did (inside a moving
     object) move on. Not in the paper; 0 = off. Render time only (docs/PHYSICS.md)."""
+    stay_on_surface: float = 0.75
+    """After the handover, stop a moving Gaussian amid still ones (at least this fraction of its
+    ``surface_neighbours`` nearest Gaussians frozen, marked static or held) where its path leaves the
+    still surface around it: farther from every still Gaussian than twice its distance at the handover
+    (or twice their typical spacing). Such Gaussians draw something that moves across a still surface
+    (the shadow a moving part casts onto it), and while the physics carries them along the surface they
+    may go on drawing it; off it they would smear it over the background (`fan`; docs/PHYSICS.md).
+    Not in the paper; 0 = off. Render time only."""
+    surface_neighbours: int = 16
+    """Nearest Gaussians (at the handover) that ``stay_on_surface`` counts."""
     freeze_static_threshold: float = 0.0
     """Gaussians whose deformation stays below this displacement (scene units) are frozen when
     extrapolating (0 = off). Used when ``freeze_static_auto`` is off."""

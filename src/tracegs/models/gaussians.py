@@ -63,11 +63,15 @@ def random_gaussians(
     return create_gaussians(means, colors, sh_degree, **kwargs)
 
 
-def nearest_neighbours(points: torch.Tensor, k: int, chunk: int = 4096) -> tuple[torch.Tensor, torch.Tensor]:
-    """Squared distances and indices of the ``k`` nearest other points, [N, k] each (closest first)."""
+def nearest_neighbours(
+    points: torch.Tensor, k: int, chunk: int = 4096, of: torch.Tensor | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Squared distances and indices of the ``k`` nearest other points, [N, k] each (closest first);
+    with ``of`` (indices [M] into ``points``), of those points only ([M, k])."""
+    queries = points if of is None else points[of]
     d2s, idxs = [], []
-    for start in range(0, points.shape[0], chunk):
-        d2 = torch.cdist(points[start : start + chunk], points).pow(2)
+    for start in range(0, queries.shape[0], chunk):
+        d2 = torch.cdist(queries[start : start + chunk], points).pow(2)
         d2, idx = d2.topk(min(k + 1, points.shape[0]), dim=1, largest=False)
         d2s.append(d2[:, 1:])  # drop the point itself
         idxs.append(idx[:, 1:])

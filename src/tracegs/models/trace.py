@@ -10,7 +10,6 @@ N: Gaussians.
 from __future__ import annotations
 
 import contextlib
-import math
 
 import torch
 from torch import nn
@@ -19,6 +18,7 @@ from ..physics.integrate import (
     DynamicsParams,
     acceleration_consistency,
     integrate,
+    num_substeps,
     params_in_world,
     particle_velocity,
     rotation_consistency,
@@ -69,6 +69,7 @@ class TraceModel(nn.Module):
         # the rotation consistency's [N, k] neighbours, the means parameter they were found for and
         # their age in calls (a plain dict: a Parameter held as an attribute would join the module)
         self._neighbours: dict = {"of": None, "index": None, "age": 0}
+        self._surface: tuple | None = None  # (means, moving, painters) of the last handover state
 
     # ----- the fields' frame ----------------------------------------------------------------------
     def set_field_frame(self, center: torch.Tensor, scale: float) -> None:
@@ -303,19 +304,29 @@ class TraceModel(nn.Module):
             # f_trd was never shown them
             held = unseen & ~self._fields_agree(t0, means, params, dyn.hold_unseen)
             moving = ~held if moving is None else moving & ~held
+        surface, stopped = None, None
+        if dyn.stay_on_surface > 0 and moving is not None and t > t0:
+            surface = self._surface_painters(means, moving)
+            stopped = torch.zeros_like(moving)
         span = t - t0
-        n = max(1, math.ceil(abs(span) / self.dt_max - 1e-9))
+        n = num_substeps(span, self.dt_max) if span else 1
         h = span / n
+        # By default f_trd is queried once, at t0, and the constant accelerations evolve the parameters
+        # between steps (``integrate``); with ``extrapolation_requery`` Alg. 1 is applied progressively,
+        # f_trd queried at every step's start (or its end: ablation (4), no physics derivation).
+        requery = dyn.extrapolation_requery or not dyn.physics_derivation
         new_means, new_quats = means, quats
-        if dyn.extrapolation_requery or not dyn.physics_derivation:
-            # Alg. 1 applied progressively: query f_trd at every step's start (or its end, ablation (4)).
-            for k in range(n):
-                s = t0 + k * h
-                if k > 0 or not dyn.physics_derivation:
-                    params = self.query_dynamics(new_means, s if dyn.physics_derivation else s + h)
-                new_means, new_quats = step(new_means, new_quats, params, h, dyn.integrator)[:2]
-        else:  # query once at t0 and let the constant accelerations evolve the parameters
-            new_means, new_quats = integrate(means, quats, params, span, self.dt_max, dyn.integrator)[:2]
+        for k in range(n if span else 0):
+            s = t0 + k * h
+            if requery and (k > 0 or not dyn.physics_derivation):
+                params = self.query_dynamics(new_means, s if dyn.physics_derivation else s + h)
+            next_means, next_quats, evolved = step(new_means, new_quats, params, h, dyn.integrator)
+            params = params if requery else evolved
+            if surface is not None:  # stopped where they would leave their surface
+                stopped[surface.rows] |= surface.off(next_means[surface.rows])
+                next_means = torch.where(stopped[:, None], new_means, next_means)
+                next_quats = torch.where(stopped[:, None], new_quats, next_quats)
+            new_means, new_quats = next_means, next_quats
         if moving is not None:
             new_means = torch.where(moving[:, None], new_means, means)
             new_quats = torch.where(moving[:, None], new_quats, quats)
@@ -335,6 +346,33 @@ class TraceModel(nn.Module):
         )
         speed_phys = particle_velocity(means, params.velocity, params.angular_velocity).norm(dim=-1)
         return speed_phys <= ratio * (speed_defo + 0.05 * float(self.field_scale))
+
+    def _surface_painters(self, means: torch.Tensor, moving: torch.Tensor) -> _SurfacePainters | None:
+        """The moving Gaussians at least ``dynamic.stay_on_surface`` of whose
+        ``dynamic.surface_neighbours`` nearest Gaussians (at ``means``) do not move, and the still
+        Gaussians that make their surface; None where there are none. Kept for the next call with the
+        same handover state (every rendered time after the handover)."""
+        cached = self._surface
+        if cached is not None and cached[0].shape == means.shape and cached[1].shape == moving.shape:
+            if torch.equal(cached[0], means) and torch.equal(cached[1], moving):
+                return cached[2]
+        painters = self._find_surface_painters(means, moving)
+        self._surface = (means, moving, painters)
+        return painters
+
+    def _find_surface_painters(self, means: torch.Tensor, moving: torch.Tensor) -> _SurfacePainters | None:
+        dyn = self.cfg.dynamic
+        rows, still = moving.nonzero().squeeze(1), (~moving).nonzero().squeeze(1)
+        k = min(dyn.surface_neighbours, means.shape[0] - 1)
+        if k < 1 or rows.numel() == 0 or still.numel() < 2:
+            return None
+        neighbours = nearest_neighbours(means, k, of=rows)[1]
+        rows = rows[(~moving)[neighbours].float().mean(-1) >= dyn.stay_on_surface]
+        if rows.numel() == 0:
+            return None
+        surface = means[still]
+        spacing = nearest_neighbours(surface, 1)[0].sqrt().median()
+        return _SurfacePainters(means, rows, surface, spacing)
 
     @torch.no_grad()
     def moving_mask(self, t_max: float, threshold: float, samples: int = 8) -> torch.Tensor:
@@ -374,6 +412,24 @@ class TraceModel(nn.Module):
             background=background,
             backend=self.cfg.backend,
         )
+
+
+class _SurfacePainters:
+    """Moving Gaussians amid still ones (``dynamic.stay_on_surface``): ``rows`` [M] into the Gaussians,
+    the still Gaussians' positions ``surface`` [S, 3], and each painter's reach [M]: twice its distance
+    from the surface at the handover, or twice the surface's median spacing where that is larger. The
+    physics stops a painter for good at the first step that would take it out of reach."""
+
+    def __init__(self, means: torch.Tensor, rows: torch.Tensor, surface: torch.Tensor, spacing: torch.Tensor):
+        self.rows, self.surface = rows, surface
+        self.reach = 2.0 * torch.maximum(self._distance(means[rows]), spacing)
+
+    def _distance(self, points: torch.Tensor) -> torch.Tensor:
+        return torch.cdist(points, self.surface).amin(dim=1)
+
+    def off(self, points: torch.Tensor) -> torch.Tensor:
+        """[M] bool: the painters that ``points`` [M, 3] (their positions) puts out of reach."""
+        return self._distance(points) > self.reach
 
 
 def _default_field_frame(module, state_dict, prefix, *_) -> None:

@@ -340,6 +340,8 @@ AFTER_TRAINING = frozenset(
         "dynamic.handover_frames",
         "dynamic.extrapolation_requery",
         "dynamic.hold_unseen",
+        "dynamic.stay_on_surface",
+        "dynamic.surface_neighbours",
         "dynamic.freeze_static_threshold",
         "dynamic.freeze_static_auto",
     }

@@ -1,0 +1,111 @@
+"""``dynamic.stay_on_surface``: after the handover, a moving Gaussian amid still ones (it draws something
+across a still surface, a shadow) is stopped where its path would leave that surface; while on it, and
+a body's Gaussians always, the physics carries them on."""
+
+import pytest
+import torch
+from tests.conftest import randomised_model
+
+from tracegs.config import make_config
+from tracegs.physics.integrate import DynamicsParams, num_substeps
+
+T_MAX = 0.75
+SPACING = 2 / 14  # the still plane's grid step
+UP = torch.tensor([0.0, 0.0, 1.0])
+
+
+def _scene():
+    """A still plane of 15 x 15 Gaussians at z = 0; a body of 40 Gaussians in a ball of radius 0.05 at
+    z = 0.5; painter A at (-0.5, -0.5, 0) and painter B at (0.5, 0.5, 0), both in the plane.
+    f_defo moves the body up, A and B along the plane; f_trd moves the body and A up (A leaves the
+    plane) and B along the plane (B stays on it)."""
+    g = torch.linspace(-1, 1, 15)
+    plane = torch.stack(torch.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    plane = torch.cat([plane, torch.zeros(len(plane), 1)], 1)
+    body = torch.tensor([0.0, 0.0, 0.5]) + 0.05 * torch.nn.functional.normalize(torch.randn(40, 3), dim=1)
+    painters = torch.tensor([[-0.5, -0.5, 0.0], [0.5, 0.5, 0.0]])
+    points = torch.cat([plane, body, painters])
+    n_plane = len(plane)
+    defo = torch.zeros_like(points)
+    defo[n_plane : n_plane + 40] = UP
+    defo[-2:] = torch.tensor([[0.3, 0.0, 0.0], [0.2, 0.1, 0.0]])
+    phys = defo.clone()
+    phys[-2] = UP
+    return points, defo, phys, n_plane
+
+
+def _controlled_model(fraction: float):
+    torch.manual_seed(0)
+    points, defo, phys, n_plane = _scene()
+    cfg = make_config("tiny", device="cpu", bf16=False)
+    cfg.dynamic.stay_on_surface = fraction
+    cfg.dynamic.hold_unseen = 0.0
+    model = randomised_model(cfg, n=len(points))
+    with torch.no_grad():
+        model.gaussians["means"].copy_(points)  # the canonical state is t = 0
+    model.freeze_threshold = 0.01  # the plane never moves: frozen
+
+    def deform(t):
+        g = model.gaussians
+        return {"means": points + float(t) * defo, "quats": g["quats"], "scales": g["scales"]}
+
+    def query_dynamics(means, t):
+        zero = torch.zeros_like(means)
+        return DynamicsParams(phys.clone(), zero, zero, zero)
+
+    model.deform, model.query_dynamics = deform, query_dynamics
+    return model, points[:n_plane], phys
+
+
+def _distance(point, plane):
+    return (plane - point).norm(dim=-1).min()
+
+
+@pytest.mark.parametrize("t", [1.2, 2.0])
+def test_a_painter_stops_where_it_would_leave_its_surface(t):
+    model, plane, phys = _controlled_model(0.75)
+    t0 = model.handover_time(T_MAX)
+    start = model.deform(t0)["means"]
+    with torch.no_grad():
+        means = model.state_at(t, T_MAX)["means"]
+    n = len(plane)
+    torch.testing.assert_close(means[:n], start[:n], rtol=0, atol=0)  # the plane, frozen
+    carried = start + (t - t0) * phys
+    torch.testing.assert_close(means[n:-2], carried[n:-2], rtol=0, atol=1e-5)  # the body
+    torch.testing.assert_close(means[-1], carried[-1], rtol=0, atol=1e-5)  # B, on the plane
+    # A: stopped on a step's position within reach of the plane, the next step out of it
+    reach = 2 * max(float(_distance(start[-2], plane)), SPACING)
+    h = (t - t0) / num_substeps(t - t0, model.dt_max)
+    a = means[-2]
+    assert 0 < float(a[2]) <= reach + 1e-6, a  # it moved up before stopping
+    torch.testing.assert_close(a[:2], start[-2, :2], rtol=0, atol=1e-5)
+    k = float(a[2]) / h
+    assert abs(k - round(k)) < 1e-4  # on a step
+    assert float(_distance(a, plane)) <= reach < float(_distance(a + h * UP, plane))
+
+
+def test_the_stop_is_the_same_for_every_later_time():
+    model, plane, _ = _controlled_model(0.75)
+    with torch.no_grad():
+        late = [model.state_at(t, T_MAX)["means"][-2] for t in (1.5, 2.5)]
+    torch.testing.assert_close(late[0], late[1], rtol=0, atol=1e-5)
+
+
+def test_off_the_physics_carries_every_painter():
+    model, plane, phys = _controlled_model(0.0)
+    t0 = model.handover_time(T_MAX)
+    start = model.deform(t0)["means"]
+    with torch.no_grad():
+        means = model.state_at(1.2, T_MAX)["means"]
+    n = len(plane)
+    torch.testing.assert_close(means[n:], (start + (1.2 - t0) * phys)[n:], rtol=0, atol=1e-5)
+
+
+def test_without_still_gaussians_nothing_stops():
+    model, plane, phys = _controlled_model(0.5)
+    model.freeze_threshold = 0.0  # nobody frozen: the plane "moves" with zero velocity
+    t0 = model.handover_time(T_MAX)
+    start = model.deform(t0)["means"]
+    with torch.no_grad():
+        means = model.state_at(1.2, T_MAX)["means"]
+    torch.testing.assert_close(means, start + (1.2 - t0) * phys, rtol=0, atol=1e-5)
