@@ -116,7 +116,7 @@ class DynamicStageConfig:
     velocity is whatever the field's smoothness gives, and the physics would slide such a Gaussian
     (under a surface) into view; unseen Gaussians that f_trd moves as f_defo did (inside a moving
     object) move on. Not in the paper; 0 = off. Render time only (docs/PHYSICS.md)."""
-    stay_on_surface: float = 0.75
+    stay_on_surface: float = 0.5
     """After the handover, stop a moving Gaussian amid still ones (at least this fraction of its
     ``surface_neighbours`` nearest Gaussians frozen, marked static or held) where its path leaves the
     still surface around it: farther from every still Gaussian than twice its distance at the handover
