@@ -69,7 +69,7 @@ class TraceModel(nn.Module):
         # the rotation consistency's [N, k] neighbours, the means parameter they were found for and
         # their age in calls (a plain dict: a Parameter held as an attribute would join the module)
         self._neighbours: dict = {"of": None, "index": None, "age": 0}
-        self._surface: tuple | None = None  # (means, moving, painters) of the last handover state
+        self._surface: tuple | None = None  # (means, moving, painters, settings): the last handover state
 
     # ----- the fields' frame ----------------------------------------------------------------------
     def set_field_frame(self, center: torch.Tensor, scale: float) -> None:
@@ -352,12 +352,14 @@ class TraceModel(nn.Module):
         ``dynamic.surface_neighbours`` nearest Gaussians (at ``means``) do not move, and the still
         Gaussians that make their surface; None where there are none. Kept for the next call with the
         same handover state (every rendered time after the handover)."""
-        cached = self._surface
-        if cached is not None and cached[0].shape == means.shape and cached[1].shape == moving.shape:
+        dyn, cached = self.cfg.dynamic, self._surface
+        settings = (dyn.stay_on_surface, dyn.surface_neighbours)
+        same = cached is not None and cached[3] == settings and cached[0].device == means.device
+        if same and cached[0].shape == means.shape and cached[1].shape == moving.shape:
             if torch.equal(cached[0], means) and torch.equal(cached[1], moving):
                 return cached[2]
         painters = self._find_surface_painters(means, moving)
-        self._surface = (means, moving, painters)
+        self._surface = (means, moving, painters, settings)
         return painters
 
     def _find_surface_painters(self, means: torch.Tensor, moving: torch.Tensor) -> _SurfacePainters | None:
