@@ -309,14 +309,14 @@ class TraceModel(nn.Module):
             surface = self._surface_painters(means, moving)
             stopped = torch.zeros_like(moving)
         span = t - t0
-        n = num_substeps(span, self.dt_max) if span else 1
-        h = span / n
+        n = num_substeps(span, self.dt_max) if span else 0
+        h = span / max(n, 1)
         # By default f_trd is queried once, at t0, and the constant accelerations evolve the parameters
         # between steps (``integrate``); with ``extrapolation_requery`` Alg. 1 is applied progressively,
         # f_trd queried at every step's start (or its end: ablation (4), no physics derivation).
         requery = dyn.extrapolation_requery or not dyn.physics_derivation
         new_means, new_quats = means, quats
-        for k in range(n if span else 0):
+        for k in range(n):
             s = t0 + k * h
             if requery and (k > 0 or not dyn.physics_derivation):
                 params = self.query_dynamics(new_means, s if dyn.physics_derivation else s + h)
@@ -427,7 +427,9 @@ class _SurfacePainters:
         self.reach = 2.0 * torch.maximum(self._distance(means[rows]), spacing)
 
     def _distance(self, points: torch.Tensor) -> torch.Tensor:
-        return torch.cdist(points, self.surface).amin(dim=1)
+        """[M] distance of each point to the nearest still Gaussian (in chunks of at most 2^24 pairs)."""
+        rows = max(1, (1 << 24) // self.surface.shape[0])
+        return torch.cat([torch.cdist(p, self.surface).amin(dim=1) for p in points.split(rows)])
 
     def off(self, points: torch.Tensor) -> torch.Tensor:
         """[M] bool: the painters that ``points`` [M, 3] (their positions) puts out of reach."""
