@@ -304,10 +304,10 @@ class TraceModel(nn.Module):
             # f_trd was never shown them
             held = unseen & ~self._fields_agree(t0, means, params, dyn.hold_unseen)
             moving = ~held if moving is None else moving & ~held
-        surface, stopped = None, None
+        surface = None
         if dyn.stay_on_surface > 0 and moving is not None and t > t0:
             surface = self._surface_painters(means, moving)
-            stopped = torch.zeros_like(moving)
+            stopped = torch.zeros_like(moving)  # painters stopped so far
         span = t - t0
         n = num_substeps(span, self.dt_max) if span else 0
         h = span / max(n, 1)
@@ -354,10 +354,15 @@ class TraceModel(nn.Module):
         same handover state (every rendered time after the handover)."""
         dyn, cached = self.cfg.dynamic, self._surface
         settings = (dyn.stay_on_surface, dyn.surface_neighbours)
-        same = cached is not None and cached[3] == settings and cached[0].device == means.device
-        if same and cached[0].shape == means.shape and cached[1].shape == moving.shape:
-            if torch.equal(cached[0], means) and torch.equal(cached[1], moving):
-                return cached[2]
+        if (
+            cached is not None
+            and cached[3] == settings
+            and cached[0].device == means.device
+            and cached[0].shape == means.shape
+            and torch.equal(cached[0], means)
+            and torch.equal(cached[1], moving)
+        ):
+            return cached[2]
         painters = self._find_surface_painters(means, moving)
         self._surface = (means, moving, painters, settings)
         return painters
