@@ -29,6 +29,7 @@ from ..render import rasterize
 from .deformation import apply_deformation, make_deformation_field
 from .dynamics import DynamicsField
 from .gaussians import nearest_neighbours
+from .surface import SurfacePainters
 
 
 class TraceModel(nn.Module):
@@ -347,7 +348,7 @@ class TraceModel(nn.Module):
         speed_phys = particle_velocity(means, params.velocity, params.angular_velocity).norm(dim=-1)
         return speed_phys <= ratio * (speed_defo + 0.05 * float(self.field_scale))
 
-    def _surface_painters(self, means: torch.Tensor, moving: torch.Tensor) -> _SurfacePainters | None:
+    def _surface_painters(self, means: torch.Tensor, moving: torch.Tensor) -> SurfacePainters | None:
         """The moving Gaussians at least ``dynamic.stay_on_surface`` of whose
         ``dynamic.surface_neighbours`` nearest Gaussians (at ``means``) do not move, and the still
         Gaussians that make their surface; None where there are none. Kept for the next call with the
@@ -358,28 +359,13 @@ class TraceModel(nn.Module):
             cached is not None
             and cached[3] == settings
             and cached[0].device == means.device
-            and cached[0].shape == means.shape
             and torch.equal(cached[0], means)
             and torch.equal(cached[1], moving)
         ):
             return cached[2]
-        painters = self._find_surface_painters(means, moving)
+        painters = SurfacePainters.find(means, moving, dyn.stay_on_surface, dyn.surface_neighbours)
         self._surface = (means, moving, painters, settings)
         return painters
-
-    def _find_surface_painters(self, means: torch.Tensor, moving: torch.Tensor) -> _SurfacePainters | None:
-        dyn = self.cfg.dynamic
-        rows, still = moving.nonzero().squeeze(1), (~moving).nonzero().squeeze(1)
-        k = min(dyn.surface_neighbours, means.shape[0] - 1)
-        if k < 1 or rows.numel() == 0 or still.numel() < 2:
-            return None
-        neighbours = nearest_neighbours(means, k, of=rows)[1]
-        rows = rows[(~moving)[neighbours].float().mean(-1) >= dyn.stay_on_surface]
-        if rows.numel() == 0:
-            return None
-        surface = means[still]
-        spacing = nearest_neighbours(surface, 1)[0].sqrt().median()
-        return _SurfacePainters(means, rows, surface, spacing)
 
     @torch.no_grad()
     def moving_mask(self, t_max: float, threshold: float, samples: int = 8) -> torch.Tensor:
@@ -419,26 +405,6 @@ class TraceModel(nn.Module):
             background=background,
             backend=self.cfg.backend,
         )
-
-
-class _SurfacePainters:
-    """Moving Gaussians amid still ones (``dynamic.stay_on_surface``): ``rows`` [M] into the Gaussians,
-    the still Gaussians' positions ``surface`` [S, 3], and each painter's reach [M]: twice its distance
-    from the surface at the handover, or twice the surface's median spacing where that is larger. The
-    physics stops a painter for good at the first step that would take it out of reach."""
-
-    def __init__(self, means: torch.Tensor, rows: torch.Tensor, surface: torch.Tensor, spacing: torch.Tensor):
-        self.rows, self.surface = rows, surface
-        self.reach = 2.0 * torch.maximum(self._distance(means[rows]), spacing)
-
-    def _distance(self, points: torch.Tensor) -> torch.Tensor:
-        """[M] distance of each point to the nearest still Gaussian (in chunks of at most 2^24 pairs)."""
-        rows = max(1, (1 << 24) // self.surface.shape[0])
-        return torch.cat([torch.cdist(p, self.surface).amin(dim=1) for p in points.split(rows)])
-
-    def off(self, points: torch.Tensor) -> torch.Tensor:
-        """[M] bool: the painters that ``points`` [M, 3] (their positions) puts out of reach."""
-        return self._distance(points) > self.reach
 
 
 def _default_field_frame(module, state_dict, prefix, *_) -> None:
