@@ -159,6 +159,7 @@ OPTIONS = {
         "dynamics__detach_acceleration_features": True,
     },
     "angular acceleration penalty": {"dynamic__angular_acceleration_penalty": 0.005},
+    "consistency over the step's frames": {"dynamic__consistency_frames": 0.0},
 }
 
 

@@ -46,6 +46,7 @@ ABLATIONS = [
     {"dynamics__acceleration_depth": 0, "dynamics__detach_acceleration_features": True},
     {"dynamics__angular_accelerations_from_head": False, "dynamics__detach_acceleration_features": False},
     {"dynamic__rotation_consistency": 0.01, "dynamic__skip_static": 0.0},
+    {"dynamic__consistency_frames": 0.0},
     {"dynamic__skip_static": 0.5},
     {"method": "defgs", "dynamic__skip_static": 0.5},
 ]
@@ -219,6 +220,39 @@ def test_acceleration_consistency_trains_only_the_accelerations(
     assert grad[~rows].abs().sum() == 0
     others = [*field.mlp.parameters(), *model.deformation.parameters(), *model.gaussians.values()]
     assert all(p.grad is None or p.grad.abs().sum() == 0 for p in others)
+
+
+def test_acceleration_consistency_reads_the_velocities_again_at_t_check(tiny_scene, tmp_path):
+    """With ``t_check`` the loss compares f_trd's velocities at (x_t', t') plus the accelerations' change
+    with those f_trd gives where the motion, integrated from t', is at t_check; by default t_check = t."""
+    from tracegs.physics.integrate import acceleration_consistency, integrate
+
+    weight = 0.5
+    model = _perturbed_model(
+        tiny_scene, tmp_path / "on", dynamic__acceleration_consistency=weight, dynamic__skip_static=0.0
+    )
+    same = model.training_state(0.25, 0.3)[1]["acceleration"]
+    torch.testing.assert_close(model.training_state(0.25, 0.3, t_check=0.3)[1]["acceleration"], same)
+    got = model.training_state(0.25, 0.3, t_check=0.05)[1]["acceleration"]
+    with torch.no_grad():
+        start = model.deform(0.25)
+        params = model.query_dynamics(start["means"], 0.25)
+        x = integrate(start["means"], start["quats"], params, -0.2, model.dt_max)[0]
+        want = weight * acceleration_consistency(params, model.query_dynamics(x, 0.05, rates=False), -0.2)
+    torch.testing.assert_close(got.detach(), want)
+    assert not torch.allclose(got, same)
+
+
+def test_consistency_time_goes_the_way_of_t_and_turns_back_at_the_limit(tiny_scene, tmp_path):
+    trainer = Trainer(_cfg(tiny_scene, tmp_path / "run", dynamic__consistency_frames=3.0), progress=False)
+    dt = trainer.dt_frame
+    limit = 30 * dt  # consistency_frames = 3: the span is 3 dt
+    assert trainer._consistency_time(3 * dt, 4 * dt, limit) == pytest.approx(6 * dt)  # t' + span
+    assert trainer._consistency_time(15 * dt, 14 * dt, limit) == pytest.approx(12 * dt)  # t' - span
+    assert trainer._consistency_time(29 * dt, 30 * dt, limit) == pytest.approx(26 * dt)  # past the limit
+    assert trainer._consistency_time(2 * dt, dt, limit) == pytest.approx(5 * dt)  # before 0
+    off = Trainer(_cfg(tiny_scene, tmp_path / "off", dynamic__consistency_frames=0.0), progress=False)
+    assert off._consistency_time(3 * dt, 4 * dt, limit) == 4 * dt
 
 
 def test_angular_acceleration_penalty_is_the_weighted_mean_size_and_shrinks_it(tiny_scene, tmp_path):

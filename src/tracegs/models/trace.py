@@ -203,7 +203,7 @@ class TraceModel(nn.Module):
 
     # ----- the Gaussians of a training step -----------------------------------------------------
     def training_state(
-        self, t_prime: float, t: float, physics: bool = True
+        self, t_prime: float, t: float, physics: bool = True, t_check: float | None = None
     ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
         """Gaussians for rendering frame ``t`` in stage 2 (METHOD.md, Training), and the step's
         weighted auxiliary losses by name (``acceleration``, ``angular_acceleration`` and ``rotation``,
@@ -212,6 +212,8 @@ class TraceModel(nn.Module):
         TRACE: deform to t', query f_trd at (x_t', t'), integrate t' -> t, and pass f_defo's gradient
         straight through to the rendered position (that of f_defo(t') by default, see
         ``DynamicStageConfig.straight_through_time``). DefGS (or ``physics=False``): f_defo(t) alone.
+        ``t_check``: where the acceleration consistency reads f_trd's velocities again (default ``t``;
+        ``DynamicStageConfig.consistency_frames``).
         """
         dyn = self.cfg.dynamic
         if self.dynamics is None or not physics:
@@ -231,10 +233,12 @@ class TraceModel(nn.Module):
         share = 1.0 if rows is None else rows.numel() / x_start.shape[0]  # a mean over all Gaussians
         learns_accelerations = self.cfg.dynamics.order >= 2 and dyn.physics_derivation
         # (not when every Gaussian is marked static: a mean over no particles is NaN)
-        if dyn.acceleration_consistency > 0 and learns_accelerations and t != t_prime and len(x_run):
-            with torch.no_grad():  # f_trd once more, where the integration ended
-                later = self.query_dynamics(means.detach(), t, rates=False)  # it reads velocities
-            gap = acceleration_consistency(params, later, t - t_prime)  # the static ones' gap is zero
+        t_check = t if t_check is None else t_check
+        if dyn.acceleration_consistency > 0 and learns_accelerations and t_check != t_prime and len(x_run):
+            with torch.no_grad():  # f_trd once more, where the integration ends at t_check
+                x_check = means if t_check == t else self._transport(x_run, q_run, params, t_check - t_prime)
+                later = self.query_dynamics(x_check.detach(), t_check, rates=False)  # it reads velocities
+            gap = acceleration_consistency(params, later, t_check - t_prime)  # the static ones' gap is zero
             losses["acceleration"] = dyn.acceleration_consistency * share * gap
         if dyn.angular_acceleration_penalty > 0 and learns_accelerations and len(x_run):
             size = params.angular_acceleration.abs().mean()
@@ -248,6 +252,14 @@ class TraceModel(nn.Module):
             shift = (target[0] if at_t else start)["means"]
             means = means + (shift - shift.detach())
         return {"means": means, "quats": quats, "scales": start["scales"]}, losses
+
+    def _transport(
+        self, x: torch.Tensor, q: torch.Tensor, params: DynamicsParams, span: float
+    ) -> torch.Tensor:
+        """Positions reached by integrating ``params`` (held fixed) over ``span``."""
+        held = DynamicsParams(*(None if p is None else p.detach() for p in params))
+        method = self.cfg.dynamic.integrator
+        return integrate(x.detach(), q.detach(), held, span, self.dt_max, method=method)[0]
 
     def canonical_neighbours(self, refresh_every: int = 500) -> torch.Tensor:
         """[N, k] nearest neighbours of each canonical Gaussian, found again when the Gaussians are

@@ -117,6 +117,19 @@ class Trainer:
             t_prime = t + sign * dt
         return min(max(t_prime, 0.0), self.t_max)
 
+    def _consistency_time(self, t_prime: float, t: float, limit: float) -> float:
+        """Where the acceleration consistency reads f_trd again: ``dynamic.consistency_frames`` frame
+        intervals from t' in the direction of t (the other way where that leaves [0, ``limit``],
+        clamped), or t itself when the setting is 0."""
+        frames = self.cfg.dynamic.consistency_frames
+        if frames <= 0 or t == t_prime:
+            return t
+        span = math.copysign(frames * self.dt_frame, t - t_prime)
+        t_check = t_prime + span
+        if not 0.0 <= t_check <= limit:
+            t_check = t_prime - span
+        return min(max(t_check, 0.0), max(limit, t))
+
     def _static_marking_step(self) -> int:
         """Step at which ``dynamic.skip_static`` marks the static Gaussians: densification has stopped
         (the set of Gaussians is final) and the sampled time range covers the training span."""
@@ -155,8 +168,10 @@ class Trainer:
                 self.static_fraction = self.model.mark_static(skip * self.extent, self.t_max)
             view = self.data[self._dynamic_view(dyn_step)]
             physics = dyn_step >= cfg.dynamic.warmup_deformation_steps
+            t_prime = self._t_prime(view.time)
+            t_check = self._consistency_time(t_prime, view.time, self.time_limit(dyn_step))
             state, extra_losses = self.model.training_state(
-                self._t_prime(view.time), view.time, physics=physics
+                t_prime, view.time, physics=physics, t_check=t_check
             )
         t_fields = self._clock()
         if cfg.random_background:
