@@ -236,7 +236,10 @@ class TraceModel(nn.Module):
         t_check = t if t_check is None else t_check
         if dyn.acceleration_consistency > 0 and learns_accelerations and t_check != t_prime and len(x_run):
             with torch.no_grad():  # f_trd once more, where the integration ends at t_check
-                x_check = means if t_check == t else self._transport(x_run, q_run, params, t_check - t_prime)
+                x_check = means
+                if t_check != t:  # the step's own parameters carry x_t' on to t_check
+                    span = t_check - t_prime
+                    x_check = integrate(x_run, q_run, params, span, self.dt_max, method=dyn.integrator)[0]
                 later = self.query_dynamics(x_check.detach(), t_check, rates=False)  # it reads velocities
             gap = acceleration_consistency(params, later, t_check - t_prime)  # the static ones' gap is zero
             losses["acceleration"] = dyn.acceleration_consistency * share * gap
@@ -252,14 +255,6 @@ class TraceModel(nn.Module):
             shift = (target[0] if at_t else start)["means"]
             means = means + (shift - shift.detach())
         return {"means": means, "quats": quats, "scales": start["scales"]}, losses
-
-    def _transport(
-        self, x: torch.Tensor, q: torch.Tensor, params: DynamicsParams, span: float
-    ) -> torch.Tensor:
-        """Positions reached by integrating ``params`` (held fixed) over ``span``."""
-        held = DynamicsParams(*(None if p is None else p.detach() for p in params))
-        method = self.cfg.dynamic.integrator
-        return integrate(x.detach(), q.detach(), held, span, self.dt_max, method=method)[0]
 
     def canonical_neighbours(self, refresh_every: int = 500) -> torch.Tensor:
         """[N, k] nearest neighbours of each canonical Gaussian, found again when the Gaussians are
