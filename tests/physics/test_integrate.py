@@ -267,6 +267,17 @@ def test_chained_integrate_equals_manual_loop():
     torch.testing.assert_close(p.angular_velocity, params_at(params, -0.05).angular_velocity)
 
 
+def test_positions_alone_move_as_with_the_orientations():
+    x0, q0 = start_state()
+    params = varying_axis_params()
+    for method in SCHEMES:
+        x, q, p = integrate(x0, q0, params, -0.05, 1 / 60, method)
+        x_alone, q_alone, p_alone = integrate(x0, None, params, -0.05, 1 / 60, method)
+        assert q_alone is None and q is not None
+        torch.testing.assert_close(x_alone, x, atol=0, rtol=0)
+        torch.testing.assert_close(p_alone.velocity, p.velocity, atol=0, rtol=0)
+
+
 def test_quaternions_stay_unit_over_long_chains():
     x0, q0 = start_state()
     params = varying_axis_params().to(torch.float32)

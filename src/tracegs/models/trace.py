@@ -239,7 +239,7 @@ class TraceModel(nn.Module):
                 x_check = means
                 if t_check != t:  # the step's own parameters carry x_t' on to t_check
                     span = t_check - t_prime
-                    x_check = integrate(x_run, q_run, params, span, self.dt_max, method=dyn.integrator)[0]
+                    x_check = integrate(x_run, None, params, span, self.dt_max, method=dyn.integrator)[0]
                 later = self.query_dynamics(x_check.detach(), t_check, rates=False)  # it reads velocities
             gap = acceleration_consistency(params, later, t_check - t_prime)  # the static ones' gap is zero
             losses["acceleration"] = dyn.acceleration_consistency * share * gap

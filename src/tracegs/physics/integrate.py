@@ -285,17 +285,20 @@ def rotate(rotation: torch.Tensor, rotvec: torch.Tensor) -> torch.Tensor:
 
 def step(
     x: torch.Tensor,  # [N, 3] positions at t'
-    rotation: torch.Tensor,  # [N, 4] quaternions (wxyz) or [N, 3, 3] rotation matrices at t'
+    rotation: torch.Tensor | None,  # [N, 4] quaternions (wxyz) or [N, 3, 3] rotation matrices at t'
     params: DynamicsParams,  # the dynamics at t' (each [N, 3])
     dt: Time,  # signed step; negative integrates backward
     method: str = "rk2",
-) -> tuple[torch.Tensor, torch.Tensor, DynamicsParams]:
+) -> tuple[torch.Tensor, torch.Tensor | None, DynamicsParams]:
     """One step of Alg. 1 (or another scheme): ``(x_t, q_t [N, 4] unit, params(t' + dt))``.
 
-    Scales are not touched: each Gaussian is a rigid particle (Alg. 1, last line).
+    Scales are not touched: each Gaussian is a rigid particle (Alg. 1, last line). With
+    ``rotation=None`` only the positions move (``q_t`` is None): the orientation update is most
+    of a step's cost and does not change the positions.
     """
     x_new, rotvec = SCHEMES[method](x, params, dt)
-    return x_new, rotate(rotation, rotvec), params_at(params, dt)
+    rotation = None if rotation is None else rotate(rotation, rotvec)
+    return x_new, rotation, params_at(params, dt)
 
 
 def num_substeps(dt_total: float, dt_max: float) -> int:
@@ -308,12 +311,12 @@ def num_substeps(dt_total: float, dt_max: float) -> int:
 
 def integrate(
     x: torch.Tensor,  # [N, 3]
-    q: torch.Tensor,  # [N, 4] (or [N, 3, 3])
+    q: torch.Tensor | None,  # [N, 4] (or [N, 3, 3]); None: positions only
     params: DynamicsParams,  # at the start time
     dt_total: float,  # signed duration
     dt_max: float,  # largest sub-step magnitude (e.g. 1 / fps)
     method: str = "rk2",
-) -> tuple[torch.Tensor, torch.Tensor, DynamicsParams]:
+) -> tuple[torch.Tensor, torch.Tensor | None, DynamicsParams]:
     """Chain ``n = ceil(|dt_total| / dt_max)`` equal steps from t' to t' + dt_total.
 
     The parameters are queried once, at the start, and evolve between sub-steps with
