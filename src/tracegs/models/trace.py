@@ -235,12 +235,12 @@ class TraceModel(nn.Module):
         # (not when every Gaussian is marked static: a mean over no particles is NaN)
         t_check = t if t_check is None else t_check
         if dyn.acceleration_consistency > 0 and learns_accelerations and t_check != t_prime and len(x_run):
-            with torch.no_grad():  # f_trd once more, where the integration ends at t_check
+            with torch.no_grad():  # f_trd once more, where the step's own parameters carry x_t' at t_check
                 x_check = means
-                if t_check != t:  # the step's own parameters carry x_t' on to t_check
+                if t_check != t:
                     span = t_check - t_prime
                     x_check = integrate(x_run, None, params, span, self.dt_max, method=dyn.integrator)[0]
-                later = self.query_dynamics(x_check.detach(), t_check, rates=False)  # it reads velocities
+                later = self.query_dynamics(x_check, t_check, rates=False)  # it reads velocities
             gap = acceleration_consistency(params, later, t_check - t_prime)  # the static ones' gap is zero
             losses["acceleration"] = dyn.acceleration_consistency * share * gap
         if dyn.angular_acceleration_penalty > 0 and learns_accelerations and len(x_run):
