@@ -160,6 +160,7 @@ OPTIONS = {
     },
     "angular acceleration penalty": {"dynamic__angular_acceleration_penalty": 0.005},
     "consistency over the step's frames": {"dynamic__consistency_frames": 0.0},
+    "consistency on f_defo's particles": {"dynamic__consistency_transport": "deformation"},
 }
 
 

@@ -86,6 +86,12 @@ class DynamicStageConfig:
     fitted velocity field, whose small errors (0.01 in speed) over a two-frame baseline are errors of
     0.3 in acceleration; a longer baseline divides them. Same direction as t - t', turned back where it
     would leave the time range sampled so far (docs/PHYSICS.md)."""
+    consistency_transport: Literal["dynamics", "deformation"] = "dynamics"
+    """Where ``acceleration_consistency`` reads the later velocities: at the positions the step's own
+    f_trd parameters carry x_t' to (``dynamics``), or at the same Gaussians moved to that time by
+    f_defo (``deformation``: one more f_defo pass per step, without gradient). The first reads the
+    velocity field at the wrong particles wherever the accelerations being learned are wrong; on a
+    spinning body the velocity differs across it, so the target errs with them (docs/PHYSICS.md)."""
     angular_acceleration_penalty: float = 0.0
     """Weight of the mean |eps| of f_trd's angular accelerations (per component; a rotation rate, the
     same in the fields' frame and the world's), added to the step's loss: an L1 prior towards no

@@ -47,6 +47,7 @@ ABLATIONS = [
     {"dynamics__angular_accelerations_from_head": False, "dynamics__detach_acceleration_features": False},
     {"dynamic__rotation_consistency": 0.01, "dynamic__skip_static": 0.0},
     {"dynamic__consistency_frames": 0.0},
+    {"dynamic__consistency_transport": "deformation"},
     {"dynamic__skip_static": 0.5},
     {"method": "defgs", "dynamic__skip_static": 0.5},
 ]
@@ -241,6 +242,24 @@ def test_acceleration_consistency_reads_the_velocities_again_at_t_check(tiny_sce
         want = weight * acceleration_consistency(params, model.query_dynamics(x, 0.05, rates=False), -0.2)
     torch.testing.assert_close(got.detach(), want)
     assert not torch.allclose(got, same)
+
+
+def test_acceleration_consistency_can_read_the_velocities_on_f_defo_s_particles(tiny_scene, tmp_path):
+    """With ``consistency_transport = "deformation"`` the later velocities are read at the same
+    Gaussians moved to t_check by f_defo, not where the step's own f_trd parameters carry them."""
+    from tracegs.physics.integrate import acceleration_consistency
+
+    weight = 0.5
+    kw = {"dynamic__acceleration_consistency": weight, "dynamic__skip_static": 0.0}
+    model = _perturbed_model(tiny_scene, tmp_path / "on", dynamic__consistency_transport="deformation", **kw)
+    got = model.training_state(0.25, 0.3, t_check=0.05)[1]["acceleration"]
+    with torch.no_grad():
+        params = model.query_dynamics(model.deform(0.25)["means"], 0.25)
+        later = model.query_dynamics(model.deform(0.05)["means"], 0.05, rates=False)
+        want = weight * acceleration_consistency(params, later, -0.2)
+    torch.testing.assert_close(got.detach(), want)
+    model.cfg.dynamic.consistency_transport = "dynamics"
+    assert not torch.allclose(model.training_state(0.25, 0.3, t_check=0.05)[1]["acceleration"], got)
 
 
 def test_consistency_time_goes_the_way_of_t_and_turns_back_at_the_limit(tiny_scene, tmp_path):

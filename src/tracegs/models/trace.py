@@ -235,9 +235,12 @@ class TraceModel(nn.Module):
         # (not when every Gaussian is marked static: a mean over no particles is NaN)
         t_check = t if t_check is None else t_check
         if dyn.acceleration_consistency > 0 and learns_accelerations and t_check != t_prime and len(x_run):
-            with torch.no_grad():  # f_trd once more, where the step's own parameters carry x_t' at t_check
+            with torch.no_grad():  # f_trd once more, on the same particles at t_check
                 x_check = means
-                if t_check != t:
+                if dyn.consistency_transport == "deformation" and self.deformation is not None:
+                    x_check = self.deform(t_check)["means"]
+                    x_check = x_check if rows is None else x_check[rows]
+                elif t_check != t:
                     span = t_check - t_prime
                     x_check = integrate(x_run, None, params, span, self.dt_max, method=dyn.integrator)[0]
                 later = self.query_dynamics(x_check, t_check, rates=False)  # it reads velocities
