@@ -235,7 +235,7 @@ class TraceModel(nn.Module):
         # (not when every Gaussian is marked static: a mean over no particles is NaN)
         t_check = t if t_check is None else t_check
         if dyn.acceleration_consistency > 0 and learns_accelerations and t_check != t_prime and len(x_run):
-            with torch.no_grad():  # f_trd once more, on the same particles at t_check
+            with torch.no_grad():  # f_trd once more at t_check, where x_t' is carried there
                 x_check = means
                 if dyn.consistency_transport == "deformation" and self.deformation is not None:
                     x_check = self.deform(t_check)["means"]
