@@ -236,13 +236,14 @@ class TraceModel(nn.Module):
         t_check = t if t_check is None else t_check
         if dyn.acceleration_consistency > 0 and learns_accelerations and t_check != t_prime and len(x_run):
             with torch.no_grad():  # f_trd once more at t_check, where x_t' is carried there
-                x_check = means
                 if dyn.consistency_transport == "deformation" and self.deformation is not None:
                     x_check = self.deform(t_check)["means"]
                     x_check = x_check if rows is None else x_check[rows]
                 elif t_check != t:
                     span = t_check - t_prime
                     x_check = integrate(x_run, None, params, span, self.dt_max, method=dyn.integrator)[0]
+                else:
+                    x_check = means
                 later = self.query_dynamics(x_check, t_check, rates=False)  # it reads velocities
             gap = acceleration_consistency(params, later, t_check - t_prime)  # the static ones' gap is zero
             losses["acceleration"] = dyn.acceleration_consistency * share * gap
