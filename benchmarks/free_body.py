@@ -1,0 +1,301 @@
+"""Would a free-body extrapolation of each moving part do better than the learned physics? A diagnosis
+on synthetic scenes (``gt/`` of `tracegs synth`); docs/PHYSICS.md, "A free body per part".
+
+After the handover, the Gaussians of each moving part are moved as one rigid body: a pivot follows
+the parabola fitted to its path under f_defo over the ``--window`` frames before the handover (a
+constant acceleration, as gravity gives a free body), and the body turns about it at a constant
+angular velocity: f_trd's, read as the rigid motion that best fits the part's particle velocities
+``v_bar + w x x`` at the handover (``--spin trd``), or f_defo's own turn over the last two frames
+(``--spin defo``). Every other Gaussian keeps its learned future.
+
+- ``--pivot centroid``: the part's centroid; ``fitted``: the body point whose path under f_defo is
+  closest to a parabola (for a hinge, a point of its axis).
+- ``--parts-from truth``: the ground-truth parts (each Gaussian to the nearest, as in
+  ``oracle_motion.py``); ``rigid``: found without labels, as the connected groups of moving
+  neighbours whose f_trd velocities keep their distances (``_rigid_components``).
+- ``--backtest K``: a part is given the free body only if it passes a test over the K frames before
+  the handover: ``points`` / ``centroid``, the free body fitted K frames earlier predicts f_defo's
+  Gaussians / their centroid at the handover better than the learned physics from there; ``axis``,
+  the part turns (|w| > 0.2) about an axis that moved by 0.03 or more (a part whose axis stays is a
+  hinge, which the learned physics holds by construction).
+
+A spinning body that falls is what the learned physics cannot hold: its equivalent acceleration
+a_bar changes at -w x a_c (docs/PHYSICS.md, "What the physics costs").
+
+Usage: .venv/bin/python benchmarks/free_body.py [--future-end 0.7627] [options] RUN ...
+RUN: a validation run, scored to ``--future-end``; without it the test split is scored (a diagnosis
+of a finished run, never a way to choose a setting).
+"""
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import torch
+from oracle_motion import _score
+from scipy.spatial.transform import Rotation
+
+import tracegs.eval.protocol as protocol
+from tracegs.eval.physics import _gt, _motions, assign_parts
+from tracegs.physics.integrate import particle_velocity
+from tracegs.physics.so3 import quat_multiply, quat_normalize, rotmat_to_quat, skew
+
+
+def _moves(motion: dict) -> bool:
+    keys = ("linear_velocity", "linear_acceleration", "angular_velocity", "angular_acceleration")
+    return any(np.abs(np.asarray(motion[k], dtype=float)).max() > 0 for k in keys)
+
+
+def _parabola(times: np.ndarray, centroids: np.ndarray, t0: float) -> tuple[np.ndarray, ...]:
+    """Least-squares ``c(t) = c0 + v s + a s^2 / 2`` (s = t - t0) through the centroids [K, 3]."""
+    s = times - t0
+    basis = np.stack([np.ones_like(s), s, 0.5 * s * s], 1)
+    coef = np.linalg.lstsq(basis, centroids, rcond=None)[0]
+    return coef[0], coef[1], coef[2]
+
+
+def _pivot_path(times: np.ndarray, past: list[np.ndarray], t0: float, ridge: float = 1e-2):
+    """(p, v, a): the body point ``p`` (at ``t0``) whose path over the window is closest to a parabola
+    ``p + v s + a s^2 / 2``, and that parabola. Each frame's rigid map ``x -> R_k x + T_k`` from the
+    points at ``t0`` (``past[0]``) is a Kabsch fit; ``(R_k - I) p - v s_k - a s_k^2 / 2 = -T_k`` is linear
+    in (p, v, a). A body that only translates leaves p free: a small ridge pulls it to the centroid."""
+    x0 = past[0]
+    mean0 = x0.mean(0)
+    rows, rhs = [], []
+    for t, xk in zip(times, past, strict=True):
+        rotation, _ = Rotation.align_vectors(xk - xk.mean(0), x0 - mean0)
+        r = rotation.as_matrix()
+        shift = xk.mean(0) - r @ mean0
+        s = t - t0
+        rows.append(np.concatenate([r - np.eye(3), -s * np.eye(3), -0.5 * s * s * np.eye(3)], 1))
+        rhs.append(-shift)
+    rows.append(np.concatenate([ridge * np.eye(3), np.zeros((3, 6))], 1))
+    rhs.append(ridge * mean0)
+    sol = np.linalg.lstsq(np.concatenate(rows), np.concatenate(rhs), rcond=None)[0]
+    return sol[:3], sol[3:6], sol[6:9]
+
+
+def _rigid_components(
+    model, means: torch.Tensor, t0: float, window: int, moved: float = 0.01, k: int = 8, min_size: int = 20
+) -> torch.Tensor:
+    """[N] label of each Gaussian's rigid body, found without labels (0: none): the Gaussians f_defo
+    moved by more than ``moved`` over the window, joined to their ``k`` nearest such neighbours where
+    their distance stays within 10% (+0.002) over the window, split into connected components; those
+    under ``min_size`` Gaussians get 0."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    past = [
+        model.deform(max(0.0, t0 - j * model.dt_max))["means"].double().numpy() for j in range(window + 1)
+    ]
+    x0 = past[0]
+    idx = np.flatnonzero(np.linalg.norm(past[-1] - x0, axis=1) > moved)
+    labels = np.zeros(len(x0), dtype=np.int64)
+    if len(idx) < min_size:
+        return torch.as_tensor(labels)
+    _, nn = cKDTree(x0[idx]).query(x0[idx], k + 1)
+    i, j = np.repeat(np.arange(len(idx)), k), nn[:, 1:].reshape(-1)
+    sep = x0[idx[i]] - x0[idx[j]]
+    u = _f_trd_velocities(model, means, t0).double().numpy()[idx]
+    rel = u[i] - u[j]  # a rigid pair's relative velocity is perpendicular to its separation
+    stretch = np.abs((rel * sep).sum(1)) / np.linalg.norm(sep, axis=1)
+    keep = stretch < 0.2 * np.linalg.norm(rel, axis=1) + 0.01
+    graph = coo_matrix((np.ones(int(keep.sum())), (i[keep], j[keep])), shape=(len(idx), len(idx)))
+    _, comp = connected_components(graph, directed=False)
+    sizes = np.bincount(comp)
+    big = {c: n + 1 for n, c in enumerate(np.flatnonzero(sizes >= min_size))}
+    labels[idx] = [big.get(c, 0) for c in comp]
+    print(f"  rigid bodies: {len(big)} of sizes {sorted(sizes[sizes >= min_size].tolist(), reverse=True)}")
+    return torch.as_tensor(labels)
+
+
+def _rigid_velocity_fit(x: torch.Tensor, u: torch.Tensor, pivot: torch.Tensor) -> tuple[np.ndarray, ...]:
+    """(v, w) of the rigid motion ``u = v + w x (x - pivot)`` that best fits the particle velocities."""
+    r = (x - pivot.to(x)).double()
+    system = torch.cat([torch.eye(3, dtype=r.dtype).expand(len(r), 3, 3), -skew(r)], -1).reshape(-1, 6)
+    v_w = torch.linalg.lstsq(system, u.double().reshape(-1)).solution.numpy()
+    return v_w[:3], v_w[3:]
+
+
+def _f_trd_velocities(model, x: torch.Tensor, t: float) -> torch.Tensor:
+    params = model.query_dynamics(x, t)
+    return particle_velocity(x, params.velocity, params.angular_velocity)
+
+
+def _axis(model, x: torch.Tensor, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """(point of the instantaneous rotation axis nearest the centroid, w) of the rigid motion that best
+    fits f_trd's particle velocities at ``x``, time ``t``."""
+    c = x.double().mean(0)
+    v, w = _rigid_velocity_fit(x, _f_trd_velocities(model, x, t), c)
+    return c.numpy() + np.cross(w, v) / max(float(w @ w), 1e-12), w
+
+
+def _spin_from_positions(a: torch.Tensor, b: torch.Tensor, dt: float) -> np.ndarray:
+    """w of the rotation that best maps the centred points ``a`` to ``b`` over ``dt`` (Kabsch)."""
+    a, b = (p.double().numpy() for p in (a, b))
+    rotation, _ = Rotation.align_vectors(b - b.mean(0), a - a.mean(0))
+    return rotation.as_rotvec() / dt
+
+
+def _move(x: torch.Tensor, c0, v, a, w, s: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Points ``x`` of a rigid body whose pivot ``c0`` moves at ``v + a s`` and which turns at ``w``
+    about it, ``s`` later, and the turn (a rotation matrix)."""
+    turn = torch.as_tensor(Rotation.from_rotvec(w * s).as_matrix(), dtype=x.dtype)
+    centre = torch.as_tensor(c0 + v * s + 0.5 * a * s * s, dtype=x.dtype)
+    return centre + (x - torch.as_tensor(c0, dtype=x.dtype)) @ turn.T, turn
+
+
+def _gap(x: torch.Tensor, ref: torch.Tensor, on: str) -> float:
+    """Mean distance of the points (``on="points"``) or distance of their centroids (``"centroid"``)."""
+    if on == "centroid":
+        return (x.mean(0) - ref.mean(0)).norm().item()
+    return (x - ref).norm(dim=-1).mean().item()
+
+
+def with_free_body_motion(
+    model,
+    data: Path,
+    window: int,
+    spin: str,
+    backtest: int = 0,
+    backtest_on: str = "points",
+    pivot: str = "centroid",
+    parts_from: str = "truth",
+):
+    """Replace ``model.state_at`` after the handover by each moving part's free-body motion (the
+    options are the command line's, module docstring)."""
+    points, part_ids, transforms = _gt(data)
+    parts = sorted(int(p) for p in np.unique(part_ids))
+    moving = [p for p, m in zip(parts, _motions(data), strict=True) if _moves(m)]
+    learned, fits = model.state_at, {}
+
+    def free_body(t0: float, rows: torch.Tensor) -> tuple[np.ndarray, ...]:
+        """(c0, v, a, w) of the Gaussians ``rows`` fitted at ``t0`` from the frames before it."""
+        times = np.array([max(0.0, t0 - k * model.dt_max) for k in range(window + 1)])
+        past = [model.deform(float(t))["means"][rows] for t in times]
+        if pivot == "fitted":
+            c0, v, a = _pivot_path(times, [m.double().numpy() for m in past], t0)
+        else:
+            c0, v, a = _parabola(times, np.stack([m.double().mean(0).numpy() for m in past]), t0)
+        if spin == "defo":
+            return c0, v, a, _spin_from_positions(past[2], past[0], 2 * model.dt_max)
+        u = _f_trd_velocities(model, past[0], t0)
+        return c0, v, a, _rigid_velocity_fit(past[0], u, torch.as_tensor(c0))[1]
+
+    def fit(t0: float, t_max: float) -> None:
+        at_t0 = transforms(t0)
+        world = np.concatenate(
+            [points[part_ids == p] @ at_t0[p - 1][:3, :3].T + at_t0[p - 1][:3, 3] for p in parts]
+        )
+        ids = np.concatenate([part_ids[part_ids == p] for p in parts])
+        state = model.deform(t0)
+        if parts_from == "rigid":
+            owner = _rigid_components(model, state["means"], t0, window)
+            chosen = sorted(set(owner.tolist()) - {0})
+        else:
+            owner, chosen = assign_parts(state["means"], world, ids, float("inf")), moving
+        fits.update(state=state, rows={}, motion={})
+        t1 = t0 - backtest * model.dt_max
+        if backtest:
+            x1, learned_then = model.deform(t1)["means"], model._physics_from(t1, t0)["means"]
+        for p in chosen:
+            rows = owner == p
+            if int(rows.sum()) < 3:
+                continue
+            if backtest and backtest_on == "axis":  # a hinge keeps its axis where it is: learned physics
+                (q0, w0), (q1, _) = (_axis(model, m[rows], t) for m, t in ((state["means"], t0), (x1, t1)))
+                shift = float(np.linalg.norm(q0 - q1))
+                hinge = np.linalg.norm(w0) > 0.2 and shift < 0.03
+                print(
+                    f"  part {p}: |w| {np.linalg.norm(w0):.3f}, axis moved {shift:.4f} over {backtest} frames: {'hinge' if hinge else 'free'}"
+                )
+                if hinge:
+                    continue
+            elif backtest:  # each model predicts t0 from t1; f_defo's state at t0 is the reference
+                c1, v, a, w = free_body(t1, rows)
+                free_then = _move(x1[rows], c1, v, a, w, t0 - t1)[0]
+                ref = state["means"][rows]
+                err_free, err_learned = (_gap(x, ref, backtest_on) for x in (free_then, learned_then[rows]))
+                print(
+                    f"  part {p}: backtest over {backtest} frames ({backtest_on}), learned {err_learned:.4f}, free body {err_free:.4f}"
+                )
+                if err_learned <= err_free:
+                    continue
+            fits["rows"][p], fits["motion"][p] = rows, free_body(t0, rows)
+
+    def state_at(t: float, t_max: float) -> dict[str, torch.Tensor]:
+        t0 = model.handover_time(t_max)
+        if t <= t0:
+            return learned(t, t_max)
+        if not fits:
+            fit(t0, t_max)
+        future, start, s = learned(t, t_max), fits["state"], t - t0
+        means, quats = future["means"].clone(), quat_normalize(future["quats"]).clone()
+        for p, rows in fits["rows"].items():
+            c0, v, a, w = fits["motion"][p]
+            means[rows], turn = _move(start["means"][rows], c0, v, a, w, s)
+            q = rotmat_to_quat(turn)[None].expand(int(rows.sum()), 4)
+            quats[rows] = quat_multiply(q, quat_normalize(start["quats"][rows]))
+        return {"means": means, "quats": quats, "scales": start["scales"]}
+
+    model.state_at = state_at
+    return model
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("runs", nargs="+", type=Path)
+    ap.add_argument(
+        "--future-end", type=float, default=None, help="validation future's end (default: test split)"
+    )
+    ap.add_argument(
+        "--window", type=int, default=12, help="frames before the handover for the centroid's fit"
+    )
+    ap.add_argument("--backtest", type=int, default=0, help="choose per part by a backtest over these frames")
+    ap.add_argument("--pivot", choices=("centroid", "fitted"), default="centroid", help="the body's pivot")
+    ap.add_argument(
+        "--parts-from", choices=("truth", "rigid"), default="truth", help="parts: ground truth or found"
+    )
+    ap.add_argument(
+        "--backtest-on", choices=("points", "centroid", "axis"), default="points", help="backtest gap"
+    )
+    ap.add_argument(
+        "--spin", choices=("trd", "defo"), default="trd", help="angular velocity from f_trd or f_defo"
+    )
+    args = ap.parse_args()
+    load_run = protocol.load_run
+    for run in args.runs:
+        learned = _score(run, args.future_end)
+
+        def free_body_load(*a, **k):
+            model, cfg, meta = load_run(*a, **k)
+            return (
+                with_free_body_motion(
+                    model,
+                    Path(cfg.data),
+                    args.window,
+                    args.spin,
+                    args.backtest,
+                    args.backtest_on,
+                    args.pivot,
+                    args.parts_from,
+                ),
+                cfg,
+                meta,
+            )
+
+        protocol.load_run = free_body_load
+        try:
+            free = _score(run, args.future_end)
+        finally:
+            protocol.load_run = load_run
+        parts = " ".join(f"{n} {learned['parts'][n]:.2f}/{free['parts'][n]:.2f}" for n in learned["parts"])
+        print(
+            f"{run.name}: learned {learned['psnr']:.3f} dB (MAE-PSNR {learned['mae_psnr']:.3f}), free body "
+            f"(parts {args.parts_from}, pivot {args.pivot}, spin {args.spin}, window {args.window}, backtest {args.backtest} on {args.backtest_on}) {free['psnr']:.3f} ({free['mae_psnr']:.3f}); parts {parts}"
+        )
+
+
+if __name__ == "__main__":
+    main()
