@@ -198,7 +198,8 @@ def with_free_body_motion(
         fits.update(state=state, rows={}, motion={})
         t1 = t0 - backtest * model.dt_max
         if backtest:
-            x1, learned_then = model.deform(t1)["means"], model._physics_from(t1, t0)["means"]
+            x1 = model.deform(t1)["means"]
+            learned_then = None if backtest_on == "axis" else model._physics_from(t1, t0)["means"]
         for p in chosen:
             rows = owner == p
             if int(rows.sum()) < 3:
