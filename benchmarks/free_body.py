@@ -12,7 +12,8 @@ angular velocity: f_trd's, read as the rigid motion that best fits the part's pa
   closest to a parabola (for a hinge, a point of its axis).
 - ``--parts-from truth``: the ground-truth parts (each Gaussian to the nearest, as in
   ``oracle_motion.py``); ``rigid``: found without labels, as the connected groups of moving
-  neighbours whose f_trd velocities keep their distances (``_rigid_components``).
+  neighbours whose f_trd velocities keep their distances (``_rigid_components``); ``kmeans``, K-means
+  over f_trd's particle velocities and spins, K the number of moving ground-truth parts.
 - ``--backtest K``: a part is given the free body only if it passes a test over the K frames before
   the handover: ``points`` / ``centroid``, the free body fitted K frames earlier predicts f_defo's
   Gaussians / their centroid at the handover better than the learned physics from there; ``axis``,
@@ -123,6 +124,24 @@ def _f_trd_velocities(model, x: torch.Tensor, t: float) -> torch.Tensor:
     return particle_velocity(x, params.velocity, params.angular_velocity)
 
 
+def _kmeans_parts(model, means: torch.Tensor, t0: float, window: int, k: int, moved: float = 0.01):
+    """[N] part label (0: none) of the Gaussians f_defo moved by more than ``moved`` over the window:
+    K-means (scikit-learn) over f_trd's particle velocity and angular velocity at ``t0``, the paper's
+    segmentation by the learned physics, with ``k`` the number of moving ground-truth parts."""
+    from sklearn.cluster import KMeans
+
+    before = model.deform(max(0.0, t0 - window * model.dt_max))["means"]
+    idx = torch.nonzero((means - before).norm(dim=-1) > moved).squeeze(1)
+    params = model.query_dynamics(means[idx], t0)
+    u = particle_velocity(means[idx], params.velocity, params.angular_velocity)
+    features = torch.cat([u, params.angular_velocity], 1).double().numpy()
+    labels = torch.zeros(len(means), dtype=torch.long)
+    if len(idx) >= k:
+        labels[idx] = torch.as_tensor(KMeans(k, n_init=10, random_state=0).fit_predict(features)).long() + 1
+    print(f"  k-means parts: sizes {torch.bincount(labels)[1:].tolist()}")
+    return labels
+
+
 def _axis(model, x: torch.Tensor, t: float) -> tuple[np.ndarray, np.ndarray]:
     """(point of the instantaneous rotation axis nearest the centroid, w) of the rigid motion that best
     fits f_trd's particle velocities at ``x``, time ``t``."""
@@ -193,6 +212,9 @@ def with_free_body_motion(
         if parts_from == "rigid":
             owner = _rigid_components(model, state["means"], t0, window)
             chosen = sorted(set(owner.tolist()) - {0})
+        elif parts_from == "kmeans":
+            owner = _kmeans_parts(model, state["means"], t0, window, len(moving))
+            chosen = sorted(set(owner.tolist()) - {0})
         else:
             owner, chosen = assign_parts(state["means"], world, ids, float("inf")), moving
         fits.update(state=state, rows={}, motion={})
@@ -256,7 +278,10 @@ def main() -> None:
     ap.add_argument("--backtest", type=int, default=0, help="choose per part by a backtest over these frames")
     ap.add_argument("--pivot", choices=("centroid", "fitted"), default="centroid", help="the body's pivot")
     ap.add_argument(
-        "--parts-from", choices=("truth", "rigid"), default="truth", help="parts: ground truth or found"
+        "--parts-from",
+        choices=("truth", "rigid", "kmeans"),
+        default="truth",
+        help="parts: ground truth or found",
     )
     ap.add_argument(
         "--backtest-on", choices=("points", "centroid", "axis"), default="points", help="backtest gap"
