@@ -325,7 +325,10 @@ def run_variant_table(
         flags = _flags(overrides) + ("" if validation is None else f" --validation {validation:g}")
         command = command or f"tracegs bench {name} --scenes {' '.join(scenes)} --preset {preset}{flags}"
         stamp = {"command": command, "machine": machine_description()}
-        suffix = f"-{preset}{flags.replace(' ', '')}"
+        # the table is the same wherever it trained: the device is in each row's command, not the name
+        same_table = {k: v for k, v in (overrides or {}).items() if k != "device"}
+        table_flags = _flags(same_table) + ("" if validation is None else f" --validation {validation:g}")
+        suffix = f"-{preset}{table_flags.replace(' ', '')}"
         stored = [r | stamp for r in records]
         # A row with TRACE's settings (the ablation "dt=2") is the methods table's TRACE run: it is
         # stored once, as that table's TRACE record, and shown here from there. Validation tables have

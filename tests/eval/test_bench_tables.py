@@ -53,6 +53,19 @@ def test_rows_reuse_and_share_runs(tmp_path, monkeypatch):
     assert run_variant_table("methods", {"TRACE": METHODS["TRACE"]}, out, scenes, "tiny", train=False) == []
 
 
+def test_the_device_is_in_the_rows_command_not_in_the_tables_name(tmp_path, monkeypatch):
+    from tracegs import bench_report
+
+    monkeypatch.setattr(bench_report, "RESULTS_DIR", tmp_path / "results")
+    monkeypatch.setattr(bench_report, "DEFAULT_PATH", tmp_path / "BENCHMARKS.md")
+    out, scenes = tmp_path / "bench", (str(write_tiny_scene(tmp_path / "scene", size=32)),)
+    table = ("methods", {"TRACE": METHODS["TRACE"]}, out, scenes, "tiny")
+    run_variant_table(*table, overrides={"device": "cpu"})
+    (stored,) = bench_report.load_records("methods-tiny")
+    assert "--device cpu" in stored["command"]
+    assert bench_report.load_records("methods-tiny--devicecpu") == []
+
+
 def test_a_render_time_setting_re_evaluates_a_run_without_retraining(tmp_path, monkeypatch, capsys):
     from tracegs import bench_report
 
