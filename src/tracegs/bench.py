@@ -322,13 +322,13 @@ def run_variant_table(
                 }
             )
     if update_docs and records:
-        flags = _flags(overrides) + ("" if validation is None else f" --validation {validation:g}")
+        cut = "" if validation is None else f" --validation {validation:g}"
+        flags = _flags(overrides) + cut
         command = command or f"tracegs bench {name} --scenes {' '.join(scenes)} --preset {preset}{flags}"
         stamp = {"command": command, "machine": machine_description()}
         # the table is the same wherever it trained: the device is in each row's command, not the name
         same_table = {k: v for k, v in (overrides or {}).items() if k != "device"}
-        table_flags = _flags(same_table) + ("" if validation is None else f" --validation {validation:g}")
-        suffix = f"-{preset}{table_flags.replace(' ', '')}"
+        suffix = f"-{preset}{(_flags(same_table) + cut).replace(' ', '')}"
         stored = [r | stamp for r in records]
         # A row with TRACE's settings (the ablation "dt=2") is the methods table's TRACE run: it is
         # stored once, as that table's TRACE record, and shown here from there. Validation tables have
