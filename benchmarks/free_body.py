@@ -33,11 +33,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from oracle_motion import _score
+from oracle_motion import score_replaced
 from scipy.spatial.transform import Rotation
 
-import tracegs.eval.protocol as protocol
-from tracegs.eval.physics import _gt, _motions, assign_parts
+from tracegs.eval.physics import _gt, _motions, _parts_at
 from tracegs.physics.integrate import particle_velocity
 from tracegs.physics.so3 import quat_multiply, quat_normalize, rotmat_to_quat, skew
 
@@ -184,15 +183,21 @@ def with_free_body_motion(
 ):
     """Replace ``model.state_at`` after the handover by each moving part's free-body motion (the
     options are the command line's, module docstring)."""
-    points, part_ids, transforms = _gt(data)
-    parts = sorted(int(p) for p in np.unique(part_ids))
+    gt = _gt(data)
+    parts = sorted(int(p) for p in np.unique(gt[1]))
     moving = [p for p, m in zip(parts, _motions(data), strict=True) if _moves(m)]
-    learned, fits = model.state_at, {}
+    learned, fits, deformed = model.state_at, {}, {}
+
+    def means_at(t: float) -> torch.Tensor:
+        """f_defo's means at ``t``, deformed once for every part that reads them."""
+        if t not in deformed:
+            deformed[t] = model.deform(t)["means"]
+        return deformed[t]
 
     def free_body(t0: float, rows: torch.Tensor) -> tuple[np.ndarray, ...]:
         """(c0, v, a, w) of the Gaussians ``rows`` fitted at ``t0`` from the frames before it."""
         times = np.array([max(0.0, t0 - k * model.dt_max) for k in range(window + 1)])
-        past = [model.deform(float(t))["means"][rows] for t in times]
+        past = [means_at(float(t))[rows] for t in times]
         if pivot == "fitted":
             c0, v, a = _pivot_path(times, [m.double().numpy() for m in past], t0)
         else:
@@ -203,11 +208,6 @@ def with_free_body_motion(
         return c0, v, a, _rigid_velocity_fit(past[0], u, torch.as_tensor(c0))[1]
 
     def fit(t0: float, t_max: float) -> None:
-        at_t0 = transforms(t0)
-        world = np.concatenate(
-            [points[part_ids == p] @ at_t0[p - 1][:3, :3].T + at_t0[p - 1][:3, 3] for p in parts]
-        )
-        ids = np.concatenate([part_ids[part_ids == p] for p in parts])
         state = model.deform(t0)
         if parts_from == "rigid":
             owner = _rigid_components(model, state["means"], t0, window)
@@ -216,11 +216,11 @@ def with_free_body_motion(
             owner = _kmeans_parts(model, state["means"], t0, window, len(moving))
             chosen = sorted(set(owner.tolist()) - {0})
         else:
-            owner, chosen = assign_parts(state["means"], world, ids, float("inf")), moving
+            owner, chosen = _parts_at(model, t0, t_max, gt, float("inf"))[1], moving
         fits.update(state=state, rows={}, motion={})
         t1 = t0 - backtest * model.dt_max
         if backtest:
-            x1 = model.deform(t1)["means"]
+            x1 = means_at(t1)
             learned_then = None if backtest_on == "axis" else model._physics_from(t1, t0)["means"]
         for p in chosen:
             rows = owner == p
@@ -290,33 +290,11 @@ def main() -> None:
         "--spin", choices=("trd", "defo"), default="trd", help="angular velocity from f_trd or f_defo"
     )
     args = ap.parse_args()
-    load_run = protocol.load_run
+    settings = (args.window, args.spin, args.backtest, args.backtest_on, args.pivot, args.parts_from)
     for run in args.runs:
-        learned = _score(run, args.future_end)
-
-        def free_body_load(*a, **k):
-            model, cfg, meta = load_run(*a, **k)
-            return (
-                with_free_body_motion(
-                    model,
-                    Path(cfg.data),
-                    args.window,
-                    args.spin,
-                    args.backtest,
-                    args.backtest_on,
-                    args.pivot,
-                    args.parts_from,
-                ),
-                cfg,
-                meta,
-            )
-
-        protocol.load_run = free_body_load
-        try:
-            free = _score(run, args.future_end)
-        finally:
-            protocol.load_run = load_run
-        parts = " ".join(f"{n} {learned['parts'][n]:.2f}/{free['parts'][n]:.2f}" for n in learned["parts"])
+        learned, free, parts = score_replaced(
+            run, args.future_end, lambda model, data: with_free_body_motion(model, data, *settings)
+        )
         print(
             f"{run.name}: learned {learned['psnr']:.3f} dB (MAE-PSNR {learned['mae_psnr']:.3f}), free body "
             f"(parts {args.parts_from}, pivot {args.pivot}, spin {args.spin}, window {args.window}, backtest {args.backtest} on {args.backtest_on}) {free['psnr']:.3f} ({free['mae_psnr']:.3f}); parts {parts}"

@@ -77,6 +77,25 @@ def _score(run: Path, future_end: float | None) -> dict:
     return {"psnr": e["psnr"], "mae_psnr": e["mae_psnr"], "parts": parts}
 
 
+def score_replaced(run: Path, future_end: float | None, replace) -> tuple[dict, dict, str]:
+    """(learned, replaced, per-part line) of a run's future: scored as learned, then with the model
+    that ``replace(model, data)`` returns (e.g. ``with_ground_truth_motion``) in place of the loaded one."""
+    learned = _score(run, future_end)
+    load_run = protocol.load_run
+
+    def replaced_load(*a, **k):
+        model, cfg, meta = load_run(*a, **k)
+        return replace(model, Path(cfg.data)), cfg, meta
+
+    protocol.load_run = replaced_load
+    try:
+        replaced = _score(run, future_end)
+    finally:
+        protocol.load_run = load_run
+    parts = " ".join(f"{n} {learned['parts'][n]:.2f}/{replaced['parts'][n]:.2f}" for n in learned["parts"])
+    return learned, replaced, parts
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("runs", nargs="+", type=Path)
@@ -87,21 +106,9 @@ def main() -> None:
         "--parts", nargs="+", default=None, help="exact motion for these parts only (gt/motion.json names)"
     )
     args = ap.parse_args()
-    load_run = protocol.load_run
     for run in args.runs:
-        learned = _score(run, args.future_end)
-
-        def oracle_load(*a, **k):
-            model, cfg, meta = load_run(*a, **k)
-            return with_ground_truth_motion(model, Path(cfg.data), args.parts), cfg, meta
-
-        protocol.load_run = oracle_load
-        try:
-            oracle = _score(run, args.future_end)
-        finally:
-            protocol.load_run = load_run
-        parts = " ".join(
-            f"{name} {learned['parts'][name]:.2f}/{oracle['parts'][name]:.2f}" for name in learned["parts"]
+        learned, oracle, parts = score_replaced(
+            run, args.future_end, lambda model, data: with_ground_truth_motion(model, data, args.parts)
         )
         print(
             f"{run.name}: learned {learned['psnr']:.3f} dB (MAE-PSNR {learned['mae_psnr']:.3f}), exact motion "

@@ -250,7 +250,7 @@ def run_variant_table(
     """
     from .config import apply_overrides
     from .eval.protocol import evaluate_run
-    from .train.trainer import AFTER_TRAINING, Trainer
+    from .train.trainer import AFTER_TRAINING, RESUMABLE_CHANGES, Trainer
 
     records = []
     for scene in scenes:
@@ -326,8 +326,11 @@ def run_variant_table(
         flags = _flags(overrides) + cut
         command = command or f"tracegs bench {name} --scenes {' '.join(scenes)} --preset {preset}{flags}"
         stamp = {"command": command, "machine": machine_description()}
-        # the table is the same wherever it trained: the device is in each row's command, not the name
-        same_table = {k: v for k, v in (overrides or {}).items() if k != "device"}
+        # settings a run may be resumed with (the device, ...) leave it the same run and the same table:
+        # they are in each row's command, not in the table's name
+        same_table = {
+            k: v for k, v in (overrides or {}).items() if k.replace("__", ".") not in RESUMABLE_CHANGES
+        }
         suffix = f"-{preset}{(_flags(same_table) + cut).replace(' ', '')}"
         stored = [r | stamp for r in records]
         # A row with TRACE's settings (the ablation "dt=2") is the methods table's TRACE run: it is
