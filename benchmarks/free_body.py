@@ -18,7 +18,8 @@ angular velocity: f_trd's, read as the rigid motion that best fits the part's pa
   the handover: ``points`` / ``centroid``, the free body fitted K frames earlier predicts f_defo's
   Gaussians / their centroid at the handover better than the learned physics from there; ``axis``,
   the part turns (|w| > 0.2) about an axis that moved by 0.03 or more (a part whose axis stays is a
-  hinge, which the learned physics holds by construction).
+  hinge, which the learned physics holds by construction). It also prints, as a diagnosis, how far
+  the axis moved from where a free body's would have moved (``_free_axis_shift``).
 
 A spinning body that falls is what the learned physics cannot hold: its equivalent acceleration
 a_bar changes at -w x a_c (docs/PHYSICS.md, "What the physics costs").
@@ -149,6 +150,13 @@ def _axis(model, x: torch.Tensor, t: float) -> tuple[np.ndarray, np.ndarray]:
     return c.numpy() + np.cross(w, v) / max(float(w @ w), 1e-12), w
 
 
+def _free_axis_shift(c0, v, a, w, span: float) -> np.ndarray:
+    """How the instantaneous axis of a free body (pivot on the parabola ``c0 + v s + a s^2 / 2``,
+    constant spin ``w``) moves over the ``span`` before ``s = 0``: the axis point nearest the pivot is
+    ``c + w x v_c / |w|^2`` (as in ``_axis``), and only ``c`` and ``v_c`` change."""
+    return v * span - 0.5 * a * span**2 + np.cross(w, a * span) / max(float(w @ w), 1e-12)
+
+
 def _spin_from_positions(a: torch.Tensor, b: torch.Tensor, dt: float) -> np.ndarray:
     """w of the rotation that best maps the centred points ``a`` to ``b`` over ``dt`` (Kabsch)."""
     a, b = (p.double().numpy() for p in (a, b))
@@ -230,6 +238,11 @@ def with_free_body_motion(
                 (q0, w0), (q1, _) = (_axis(model, m[rows], t) for m, t in ((state["means"], t0), (x1, t1)))
                 shift = float(np.linalg.norm(q0 - q1))
                 hinge = np.linalg.norm(w0) > 0.2 and shift < 0.03
+                expected = _free_axis_shift(*free_body(t0, rows), t0 - t1)
+                print(
+                    f"  part {p}: a free body's axis would have moved {np.linalg.norm(expected):.4f}, "
+                    f"off the one seen by {np.linalg.norm(q0 - q1 - expected):.4f}"
+                )
                 print(
                     f"  part {p}: |w| {np.linalg.norm(w0):.3f}, axis moved {shift:.4f} over {backtest} frames: {'hinge' if hinge else 'free'}"
                 )
