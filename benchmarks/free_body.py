@@ -150,7 +150,7 @@ def _axis(model, x: torch.Tensor, t: float) -> tuple[np.ndarray, np.ndarray]:
     return c.numpy() + np.cross(w, v) / max(float(w @ w), 1e-12), w
 
 
-def _free_axis_shift(c0, v, a, w, span: float) -> np.ndarray:
+def _free_axis_shift(v, a, w, span: float) -> np.ndarray:
     """How the instantaneous axis of a free body (pivot on the parabola ``c0 + v s + a s^2 / 2``,
     constant spin ``w``) moves over the ``span`` before ``s = 0``: the axis point nearest the pivot is
     ``c + w x v_c / |w|^2`` (as in ``_axis``), and only ``c`` and ``v_c`` change."""
@@ -234,11 +234,12 @@ def with_free_body_motion(
             rows = owner == p
             if int(rows.sum()) < 3:
                 continue
+            motion = free_body(t0, rows)
             if backtest and backtest_on == "axis":  # a hinge keeps its axis where it is: learned physics
                 (q0, w0), (q1, _) = (_axis(model, m[rows], t) for m, t in ((state["means"], t0), (x1, t1)))
                 shift = float(np.linalg.norm(q0 - q1))
                 hinge = np.linalg.norm(w0) > 0.2 and shift < 0.03
-                expected = _free_axis_shift(*free_body(t0, rows), t0 - t1)
+                expected = _free_axis_shift(*motion[1:], t0 - t1)
                 print(
                     f"  part {p}: a free body's axis would have moved {np.linalg.norm(expected):.4f}, "
                     f"off the one seen by {np.linalg.norm(q0 - q1 - expected):.4f}"
@@ -258,7 +259,7 @@ def with_free_body_motion(
                 )
                 if err_learned <= err_free:
                     continue
-            fits["rows"][p], fits["motion"][p] = rows, free_body(t0, rows)
+            fits["rows"][p], fits["motion"][p] = rows, motion
 
     def state_at(t: float, t_max: float) -> dict[str, torch.Tensor]:
         t0 = model.handover_time(t_max)
