@@ -36,8 +36,9 @@ def machine_description() -> str:
     """One line naming the CPU, core count, torch version and date, for every benchmark table."""
     cpu = cpu_name()
     gpu = f", GPU {torch.cuda.get_device_name(0)}" if torch.cuda.is_available() else ""
+    threads = torch.get_num_threads()
     return (
-        f"{cpu}, {os.cpu_count()} cores, {torch.get_num_threads()} torch threads{gpu}, "
+        f"{cpu}, {os.cpu_count()} cores, {threads} torch thread{'s' if threads != 1 else ''}{gpu}, "
         f"torch {torch.__version__}, {_dt.date.today().isoformat()}"
     )
 
