@@ -9,10 +9,7 @@ The data is not part of the repository (see ../shared/data/README.md).
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
-
-import torch
 
 from tracegs.bench import ABLATIONS, METHODS, OPTIONS, run_variant_table
 
@@ -40,8 +37,6 @@ def main() -> None:
     )
     ap.add_argument("--out", type=Path, default=Path("runs/bench"))
     args = ap.parse_args()
-    if "OMP_NUM_THREADS" not in os.environ:  # two runs side by side set it to 1 each
-        torch.set_num_threads(2)
     scenes = tuple(str(args.root / s) for s in args.scenes)
     missing = [s for s in scenes if not Path(s, "transforms_train.json").is_file()]
     if missing:

@@ -59,7 +59,6 @@ def main() -> None:
     ap.add_argument("runs", nargs="+", type=Path)
     ap.add_argument("--future", type=float, default=1.0, help="the future time to predict (default 1.0)")
     args = ap.parse_args()
-    torch.set_num_threads(2)
     for run in args.runs:
         report(run, args.future)
 

@@ -30,7 +30,6 @@ def main() -> None:
     ap.add_argument("--views", type=int, default=40)
     ap.add_argument("--out", type=Path, default=Path("runs/bench"))
     args = ap.parse_args()
-    torch.set_num_threads(2)
     data = args.out / "scenes" / f"{args.scene}_128_static_v{args.views}"
     if not (data / "transforms_val.json").is_file():
         synthesize(
