@@ -19,7 +19,11 @@ angular velocity: f_trd's, read as the rigid motion that best fits the part's pa
   Gaussians / their centroid at the handover better than the learned physics from there; ``axis``,
   the part turns (|w| > 0.2) about an axis that moved by 0.03 or more (a part whose axis stays is a
   hinge, which the learned physics holds by construction). It also prints, as a diagnosis, how far
-  the axis moved from where a free body's would have moved (``_free_axis_shift``).
+  the axis moved from where a free body's would have moved (``_free_axis_shift``); ``images``, each
+  model from K frames before the handover, rendered with the part moved by it (every other Gaussian
+  where f_defo puts it) into the training cameras at the training frames from there to t_max, the one
+  nearer the training images (mean squared error) kept: a test on the data, which (unlike f_defo's
+  state) sees the part's spin.
 
 A spinning body that falls is what the learned physics cannot hold: its equivalent acceleration
 a_bar changes at -w x a_c (docs/PHYSICS.md, "What the physics costs").
@@ -38,21 +42,15 @@ from oracle_motion import score_replaced
 from scipy.spatial.transform import Rotation
 
 from tracegs.eval.physics import _gt, _motions, _parts_at
+from tracegs.physics.free_body import FreeBody, fit_parabola, fit_rigid_velocity, move, rigid_components
 from tracegs.physics.integrate import particle_velocity
-from tracegs.physics.so3 import quat_multiply, quat_normalize, rotmat_to_quat, skew
+from tracegs.physics.so3 import quat_normalize
+from tracegs.train.calibrate import _Backtest
 
 
 def _moves(motion: dict) -> bool:
     keys = ("linear_velocity", "linear_acceleration", "angular_velocity", "angular_acceleration")
     return any(np.abs(np.asarray(motion[k], dtype=float)).max() > 0 for k in keys)
-
-
-def _parabola(times: np.ndarray, centroids: np.ndarray, t0: float) -> tuple[np.ndarray, ...]:
-    """Least-squares ``c(t) = c0 + v s + a s^2 / 2`` (s = t - t0) through the centroids [K, 3]."""
-    s = times - t0
-    basis = np.stack([np.ones_like(s), s, 0.5 * s * s], 1)
-    coef = np.linalg.lstsq(basis, centroids, rcond=None)[0]
-    return coef[0], coef[1], coef[2]
 
 
 def _pivot_path(times: np.ndarray, past: list[np.ndarray], t0: float, ridge: float = 1e-2):
@@ -77,46 +75,22 @@ def _pivot_path(times: np.ndarray, past: list[np.ndarray], t0: float, ridge: flo
 
 
 def _rigid_components(
-    model, means: torch.Tensor, t0: float, window: int, moved: float = 0.01, k: int = 8, min_size: int = 20
+    model, means: torch.Tensor, t0: float, window: int, moved: float = 0.01
 ) -> torch.Tensor:
     """[N] label of each Gaussian's rigid body, found without labels (0: none): the Gaussians f_defo
-    moved by more than ``moved`` over the window, joined to their ``k`` nearest such neighbours where
-    their distance stays within 10% (+0.002) over the window, split into connected components; those
-    under ``min_size`` Gaussians get 0."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
-    past = [
-        model.deform(max(0.0, t0 - j * model.dt_max))["means"].double().numpy() for j in range(window + 1)
-    ]
-    x0 = past[0]
-    idx = np.flatnonzero(np.linalg.norm(past[-1] - x0, axis=1) > moved)
-    labels = np.zeros(len(x0), dtype=np.int64)
-    if len(idx) < min_size:
-        return torch.as_tensor(labels)
-    _, nn = cKDTree(x0[idx]).query(x0[idx], k + 1)
-    i, j = np.repeat(np.arange(len(idx)), k), nn[:, 1:].reshape(-1)
-    sep = x0[idx[i]] - x0[idx[j]]
-    u = _f_trd_velocities(model, means, t0).double().numpy()[idx]
-    rel = u[i] - u[j]  # a rigid pair's relative velocity is perpendicular to its separation
-    stretch = np.abs((rel * sep).sum(1)) / np.linalg.norm(sep, axis=1)
-    keep = stretch < 0.2 * np.linalg.norm(rel, axis=1) + 0.01
-    graph = coo_matrix((np.ones(int(keep.sum())), (i[keep], j[keep])), shape=(len(idx), len(idx)))
-    _, comp = connected_components(graph, directed=False)
-    sizes = np.bincount(comp)
-    big = {c: n + 1 for n, c in enumerate(np.flatnonzero(sizes >= min_size))}
-    labels[idx] = [big.get(c, 0) for c in comp]
-    print(f"  rigid bodies: {len(big)} of sizes {sorted(sizes[sizes >= min_size].tolist(), reverse=True)}")
-    return torch.as_tensor(labels)
+    moved by more than ``moved`` over the window, grouped by f_trd's velocities (``rigid_components``
+    of ``tracegs.physics.free_body``)."""
+    before = model.deform(max(0.0, t0 - window * model.dt_max))["means"]
+    labels = rigid_components(
+        means, (means - before).norm(dim=-1) > moved, _f_trd_velocities(model, means, t0), speed_floor=0.01
+    )
+    print(f"  rigid bodies: {int(labels.max())} of sizes {torch.bincount(labels)[1:].tolist()}")
+    return labels
 
 
-def _rigid_velocity_fit(x: torch.Tensor, u: torch.Tensor, pivot: torch.Tensor) -> tuple[np.ndarray, ...]:
+def _rigid_velocity_fit(x: torch.Tensor, u: torch.Tensor, pivot) -> tuple[np.ndarray, ...]:
     """(v, w) of the rigid motion ``u = v + w x (x - pivot)`` that best fits the particle velocities."""
-    r = (x - pivot.to(x)).double()
-    system = torch.cat([torch.eye(3, dtype=r.dtype).expand(len(r), 3, 3), -skew(r)], -1).reshape(-1, 6)
-    v_w = torch.linalg.lstsq(system, u.double().reshape(-1)).solution.numpy()
-    return v_w[:3], v_w[3:]
+    return tuple(z.numpy() for z in fit_rigid_velocity(x, u, torch.as_tensor(pivot)))
 
 
 def _f_trd_velocities(model, x: torch.Tensor, t: float) -> torch.Tensor:
@@ -164,12 +138,12 @@ def _spin_from_positions(a: torch.Tensor, b: torch.Tensor, dt: float) -> np.ndar
     return rotation.as_rotvec() / dt
 
 
-def _move(x: torch.Tensor, c0, v, a, w, s: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Points ``x`` of a rigid body whose pivot ``c0`` moves at ``v + a s`` and which turns at ``w``
-    about it, ``s`` later, and the turn (a rotation matrix)."""
-    turn = torch.as_tensor(Rotation.from_rotvec(w * s).as_matrix(), dtype=x.dtype)
-    centre = torch.as_tensor(c0 + v * s + 0.5 * a * s * s, dtype=x.dtype)
-    return centre + (x - torch.as_tensor(c0, dtype=x.dtype)) @ turn.T, turn
+def _move(
+    means: torch.Tensor, quats: torch.Tensor, c0, v, a, w, s: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The Gaussians of a free body (``tracegs.physics.free_body.move``), ``s`` after ``c0``'s time."""
+    body = FreeBody(*(torch.as_tensor(z, dtype=torch.float64) for z in (c0, v, a, w)))
+    return move(means, quats, body, s)
 
 
 def _gap(x: torch.Tensor, ref: torch.Tensor, on: str) -> float:
@@ -209,11 +183,12 @@ def with_free_body_motion(
         if pivot == "fitted":
             c0, v, a = _pivot_path(times, [m.double().numpy() for m in past], t0)
         else:
-            c0, v, a = _parabola(times, np.stack([m.double().mean(0).numpy() for m in past]), t0)
+            centroids = torch.stack([m.double().mean(0) for m in past])
+            c0, v, a = (z.numpy() for z in fit_parabola(torch.as_tensor(times), centroids, t0))
         if spin == "defo":
             return c0, v, a, _spin_from_positions(past[2], past[0], 2 * model.dt_max)
         u = _f_trd_velocities(model, past[0], t0)
-        return c0, v, a, _rigid_velocity_fit(past[0], u, torch.as_tensor(c0))[1]
+        return c0, v, a, _rigid_velocity_fit(past[0], u, c0)[1]
 
     def fit(t0: float, t_max: float) -> None:
         state = model.deform(t0)
@@ -227,7 +202,9 @@ def with_free_body_motion(
             owner, chosen = _parts_at(model, t0, t_max, gt, float("inf"))[1], moving
         fits.update(state=state, rows={}, motion={})
         t1 = t0 - backtest * model.dt_max
-        if backtest:
+        if backtest and backtest_on == "images":
+            photo = _Backtest(model, data, model.cfg.downscale, t1, t_max)
+        elif backtest:
             x1 = means_at(t1)
             learned_then = None if backtest_on == "axis" else model._physics_from(t1, t0)["means"]
         for p in chosen:
@@ -249,9 +226,18 @@ def with_free_body_motion(
                 )
                 if hinge:
                     continue
+            elif backtest and backtest_on == "images":
+                body = FreeBody(*(torch.as_tensor(z, dtype=torch.float64) for z in free_body(t1, rows)))
+                err_learned, err_free = photo.error(rows, None), photo.error(rows, body)
+                print(
+                    f"  part {p} ({int(rows.sum())} Gaussians): image backtest over {len(photo.views)} frames, "
+                    f"mse learned {err_learned:.3e}, free body {err_free:.3e}"
+                )
+                if err_learned <= err_free:
+                    continue
             elif backtest:  # each model predicts t0 from t1; f_defo's state at t0 is the reference
                 c1, v, a, w = free_body(t1, rows)
-                free_then = _move(x1[rows], c1, v, a, w, t0 - t1)[0]
+                free_then = _move(x1[rows], model.deform(t1)["quats"][rows], c1, v, a, w, t0 - t1)[0]
                 ref = state["means"][rows]
                 err_free, err_learned = (_gap(x, ref, backtest_on) for x in (free_then, learned_then[rows]))
                 print(
@@ -271,9 +257,7 @@ def with_free_body_motion(
         means, quats = future["means"].clone(), quat_normalize(future["quats"]).clone()
         for p, rows in fits["rows"].items():
             c0, v, a, w = fits["motion"][p]
-            means[rows], turn = _move(start["means"][rows], c0, v, a, w, s)
-            q = rotmat_to_quat(turn)[None].expand(int(rows.sum()), 4)
-            quats[rows] = quat_multiply(q, quat_normalize(start["quats"][rows]))
+            means[rows], quats[rows] = _move(start["means"][rows], start["quats"][rows], c0, v, a, w, s)
         return {"means": means, "quats": quats, "scales": start["scales"]}
 
     model.state_at = state_at
@@ -298,7 +282,10 @@ def main() -> None:
         help="parts: ground truth or found",
     )
     ap.add_argument(
-        "--backtest-on", choices=("points", "centroid", "axis"), default="points", help="backtest gap"
+        "--backtest-on",
+        choices=("points", "centroid", "axis", "images"),
+        default="points",
+        help="backtest gap",
     )
     ap.add_argument(
         "--spin", choices=("trd", "defo"), default="trd", help="angular velocity from f_trd or f_defo"

@@ -140,6 +140,23 @@ class DynamicStageConfig:
     Not in the paper; 0 = off. Render time only."""
     surface_neighbours: int = 16
     """Nearest Gaussians (at the handover) that ``stay_on_surface`` counts."""
+    free_bodies: bool = False
+    """After training, find the parts that move as one rigid body (without labels) and give each the
+    future of a free body, a pivot on a parabola and a constant spin (``physics/free_body.py``), where
+    that predicts the training images of the last frames better than the learned physics does: each
+    model starts ``free_body_backtest`` frames before the handover and must come nearer the training
+    images up to t_max by ``free_body_margin`` (relative mean squared error). The learned physics
+    cannot hold a spinning body that falls (docs/PHYSICS.md, "A free body per part"). Not in the
+    paper; off = the paper's extrapolation. Render time only."""
+    free_body_window: int = 12
+    """Frames of f_defo's path before the handover (or the backtest's start) that a free body's
+    parabola is fitted to."""
+    free_body_backtest: int = 8
+    """Frames before the handover from which ``free_bodies`` backtests both models on the training
+    images (up to t_max)."""
+    free_body_margin: float = 0.05
+    """How much nearer the training images (relative mean squared error) a free body must come in the
+    backtest than the learned physics to replace it."""
     freeze_static_threshold: float = 0.0
     """Gaussians whose deformation stays below this displacement (scene units) are frozen when
     extrapolating (0 = off). Used when ``freeze_static_auto`` is off."""

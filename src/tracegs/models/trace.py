@@ -14,6 +14,7 @@ import contextlib
 import torch
 from torch import nn
 
+from ..physics.free_body import FreeBody, move
 from ..physics.integrate import (
     DynamicsParams,
     acceleration_consistency,
@@ -66,6 +67,10 @@ class TraceModel(nn.Module):
         """[N] bool: Gaussians no training camera sees over the last frames before the handover, held
         still after it (``dynamic.hold_unseen``; found after training by ``train/calibrate.py``);
         None: not known, nothing held."""
+        self.free_bodies: dict | None = None
+        """The parts moved as free bodies after the handover (``dynamic.free_bodies``; chosen after
+        training by ``train/calibrate.py``): ``{"t0", "labels" [N] (0: the learned physics), "bodies"
+        [K, 12]}``; None: not chosen."""
         self._moving: torch.Tensor | None = None  # indices of the others
         # the rotation consistency's [N, k] neighbours, the means parameter they were found for and
         # their age in calls (a plain dict: a Parameter held as an attribute would join the module)
@@ -288,7 +293,29 @@ class TraceModel(nn.Module):
         if self.deformation is None:
             return self._physics_from(0.0, t)
         t0 = self.handover_time(t_max)
-        return self.deform(t) if t <= t0 else self._physics_from(t0, t)
+        if t <= t0:
+            return self.deform(t)
+        return self._with_free_bodies(t0, t, self._physics_from(t0, t))
+
+    def _with_free_bodies(
+        self, t0: float, t: float, state: dict[str, torch.Tensor]
+    ) -> dict[str, torch.Tensor]:
+        """``state`` (the learned physics at ``t``) with the free bodies' Gaussians moved as free bodies
+        from f_defo's state at ``t0`` (``physics/free_body.py``)."""
+        bodies = self.free_bodies
+        if not self.cfg.dynamic.free_bodies or bodies is None or not len(bodies["bodies"]):
+            return state
+        labels = bodies["labels"].to(state["means"].device)
+        if abs(bodies["t0"] - t0) > 1e-9 or labels.shape[0] != state["means"].shape[0]:
+            return state  # chosen for another handover or another set of Gaussians
+        start = self.deform(t0)
+        means, quats = state["means"].clone(), quat_normalize(state["quats"]).clone()
+        for k, row in enumerate(bodies["bodies"]):
+            rows = labels == k + 1
+            means[rows], quats[rows] = move(
+                start["means"][rows], start["quats"][rows], FreeBody.from_tensor(row), t - t0
+            )
+        return {**state, "means": means, "quats": quats}
 
     def handover_time(self, t_max: float) -> float:
         """Last time rendered by f_defo alone; later times are integrated from it."""

@@ -25,6 +25,9 @@ import torch
 from ..data.blender import load_image, load_scene
 from ..data.dataset import ViewDataset
 from ..eval.metrics import mae_psnr, mse
+from ..physics.free_body import FreeBody, fit_parabola, fit_rigid_velocity, move, rigid_components
+from ..physics.integrate import particle_velocity
+from ..physics.so3 import quat_normalize
 from ..render.sh import SH_C0
 from .strategy import scene_extent_from_cameras
 
@@ -130,19 +133,136 @@ def needs_unseen_mask(model) -> bool:
     )
 
 
-def calibrate_after_training(model, t_max: float, extent: float | None = None) -> dict[float, float]:
+def needs_free_bodies(model) -> bool:
+    """Whether the free bodies (``dynamic.free_bodies``) are still to be chosen: TRACE with both fields."""
+    return (
+        model.cfg.dynamic.free_bodies
+        and model.free_bodies is None
+        and model.dynamics is not None
+        and model.deformation is not None
+    )
+
+
+class _Backtest:
+    """Futures started at ``t1`` against the training images at the training times in (``t1``, ``t_max``]:
+    one part's Gaussians moved by a candidate motion, every other Gaussian where f_defo puts it."""
+
+    def __init__(self, model, data: Path, downscale: int, t1: float, t_max: float):
+        scene, by_time = training_frames_by_time(data, downscale, t_max)
+        dev = model.aabb.device
+        self.model, self.t1 = model, t1
+        self.background = torch.tensor(scene.background, device=dev)
+        self.views = {
+            t: [(f.camera.to(dev), load_image(f, scene.background).to(dev)) for f in frames]
+            for t, frames in by_time.items()
+            if t > t1 + 1e-9
+        }
+        self.start = model.deform(t1)
+        self.deformed = {t: model.deform(t) for t in self.views}
+        self.learned = {t: model._physics_from(t1, t) for t in self.views}
+
+    def error(self, rows: torch.Tensor, body: FreeBody | None) -> float:
+        """Mean squared error over the views with the Gaussians ``rows`` moved from ``t1`` by ``body``
+        (None: the learned physics)."""
+        errors = []
+        for t, views in self.views.items():
+            state = dict(self.deformed[t])
+            means, quats = state["means"].clone(), quat_normalize(state["quats"]).clone()
+            if body is None:
+                means[rows], quats[rows] = self.learned[t]["means"][rows], self.learned[t]["quats"][rows]
+            else:
+                means[rows], quats[rows] = move(
+                    self.start["means"][rows], self.start["quats"][rows], body, t - self.t1
+                )
+            state.update(means=means, quats=quats)
+            for camera, gt in views:
+                pred = self.model.render(state, camera, self.model.cfg.sh_degree, self.background).image
+                errors.append(float(mse(pred.clamp(0, 1), gt)))
+        return sum(errors) / max(len(errors), 1)
+
+
+def fit_free_body(model, rows: torch.Tensor, t0: float, window: int) -> FreeBody:
+    """The free body of the Gaussians ``rows`` at ``t0``: its pivot's parabola fitted to their centroid
+    under f_defo over the ``window`` frames before ``t0``, its spin the rigid motion that best fits
+    f_trd's particle velocities over them at ``t0``."""
+    times = torch.tensor([max(0.0, t0 - k * model.dt_max) for k in range(window + 1)], dtype=torch.float64)
+    centroids = torch.stack([model.deform(float(t))["means"][rows].double().mean(0) for t in times])
+    c0, v, a = fit_parabola(times, centroids.cpu(), t0)
+    x = model.deform(t0)["means"][rows]
+    params = model.query_dynamics(x, t0)
+    _, w = fit_rigid_velocity(x, particle_velocity(x, params.velocity, params.angular_velocity), c0)
+    return FreeBody(c0, v, a, w)
+
+
+@torch.no_grad()
+def choose_free_bodies(model, data: Path, downscale: int, t_max: float, extent: float) -> tuple[dict, list]:
+    """The free bodies of a trained model (``dynamic.free_bodies``): ``({"t0", "labels", "bodies"},
+    report)``. The parts are the rigid groups (``rigid_components``) of the Gaussians that f_defo moves
+    by more than 0.25% of the scene ``extent`` over the window before the handover t0, by f_trd's
+    velocities at t0. Each is backtested on the training images: a free body fitted ``free_body_backtest``
+    frames before t0 must come nearer them than the learned physics from there by ``free_body_margin``.
+    ``labels`` [N]: 0 = the learned physics, k = ``bodies[k - 1]`` (c0, v, a, w at t0; [K, 12])."""
+    dyn = model.cfg.dynamic
+    t0 = model.handover_time(t_max)
+    dev = model.aabb.device
+    none = {
+        "t0": t0,
+        "labels": torch.zeros(model.gaussians["means"].shape[0], dtype=torch.long, device=dev),
+        "bodies": torch.zeros(0, 12, dtype=torch.float64),
+    }
+    t1 = t0 - dyn.free_body_backtest * model.dt_max
+    if t1 - 2 * model.dt_max < -1e-9:  # too early in the span for a parabola before the backtest
+        return none, []
+    x0 = model.deform(t0)["means"]
+    before = model.deform(max(0.0, t0 - dyn.free_body_window * model.dt_max))["means"]
+    moved = (x0 - before).norm(dim=-1) > 0.0025 * extent
+    params = model.query_dynamics(x0, t0)
+    parts = rigid_components(
+        x0, moved, particle_velocity(x0, params.velocity, params.angular_velocity), 0.0025 * extent
+    ).to(dev)
+    backtest = _Backtest(model, data, downscale, t1, t_max) if int(parts.max()) > 0 else None
+    chosen, report = [], []
+    for label in range(1, int(parts.max()) + 1):
+        rows = parts == label
+        learned = backtest.error(rows, None)
+        free = backtest.error(rows, fit_free_body(model, rows, t1, dyn.free_body_window))
+        keep = free < (1 - dyn.free_body_margin) * learned
+        report.append(
+            {"gaussians": int(rows.sum()), "mse_learned": learned, "mse_free_body": free, "free_body": keep}
+        )
+        if keep:
+            chosen.append(rows)
+    if not chosen:
+        return none, report
+    labels = none["labels"].clone()
+    for k, rows in enumerate(chosen):
+        labels[rows] = k + 1
+    bodies = torch.stack(
+        [fit_free_body(model, rows, t0, dyn.free_body_window).as_tensor() for rows in chosen]
+    )
+    return {"t0": t0, "labels": labels, "bodies": bodies}, report
+
+
+def calibrate_after_training(model, t_max: float, extent: float | None = None) -> dict:
     """The choices still to make on a trained model (those it holds are kept): the Gaussians no camera
-    sees before the handover, then the freeze threshold. ``extent``: the scene extent of the training
-    cameras, found from the scene when None and needed. Returns the PSNR per candidate freeze
-    threshold (empty when the threshold was not chosen here)."""
+    sees before the handover, the freeze threshold, then the free bodies. ``extent``: the scene extent
+    of the training cameras, found from the scene when None and needed. Returns what was chosen here:
+    ``{"freeze_psnr": {threshold: psnr}, "free_bodies": [per part]}`` (keys present when chosen)."""
     cfg = model.cfg
+    out: dict = {}
     if needs_unseen_mask(model):
         model.unseen_mask = unseen_gaussians(model, cfg.data, cfg.downscale, t_max)
-    if not cfg.dynamic.freeze_static_auto or model.freeze_threshold is not None:
-        return {}
-    if extent is None:
+    needs_threshold = cfg.dynamic.freeze_static_auto and model.freeze_threshold is None
+    if extent is None and (needs_threshold or needs_free_bodies(model)):
         dev = model.aabb.device
         centers = ViewDataset(cfg.data, "train", cfg.downscale, t_max=t_max, device=dev).camera_centers()
         extent = scene_extent_from_cameras(centers)
-    model.freeze_threshold, scores = choose_freeze_threshold(model, cfg.data, cfg.downscale, t_max, extent)
-    return scores
+    if needs_threshold:
+        model.freeze_threshold, out["freeze_psnr"] = choose_freeze_threshold(
+            model, cfg.data, cfg.downscale, t_max, extent
+        )
+    if needs_free_bodies(model):
+        model.free_bodies, out["free_bodies"] = choose_free_bodies(
+            model, cfg.data, cfg.downscale, t_max, extent
+        )
+    return out

@@ -82,6 +82,7 @@ class Trainer:
         self.strategy_state = self.strategy.initialize_state()
         self.step, self.train_seconds = 0, 0.0
         self.freeze_psnr: dict[str, float] = {}  # training-view PSNR per candidate freeze threshold
+        self.free_body_report: list[dict] = []  # the parts backtested for a free body (calibrate.py)
         self.timings: dict[str, float] = defaultdict(float)
         if (self.run / "checkpoint.pt").is_file():
             self._resume(self.run / "checkpoint.pt")
@@ -286,6 +287,7 @@ class Trainer:
             "freeze_threshold": self.model.freeze_threshold,
             "freeze_psnr": self.freeze_psnr,
             "static_fraction": self.static_fraction,
+            "free_bodies": self.free_body_report,
             "ms_per_iteration": {k: round(1000 * v / steps, 2) for k, v in self.timings.items()},
             "device": str(self.device),
             "rasteriser": resolve_backend(self.cfg.backend, self.device),
@@ -293,10 +295,12 @@ class Trainer:
 
     def calibrate(self) -> None:
         """Post-training choices on the training images (``calibrate.py``): the Gaussians no camera
-        sees before the handover, then the freeze threshold."""
-        scores = calibrate_after_training(self.model, self.t_max, self.extent)
-        if scores:
-            self.freeze_psnr = {f"{k:.6g}": round(v, 3) for k, v in scores.items()}
+        sees before the handover, the freeze threshold, then the free bodies."""
+        chosen = calibrate_after_training(self.model, self.t_max, self.extent)
+        if chosen.get("freeze_psnr"):
+            self.freeze_psnr = {f"{k:.6g}": round(v, 3) for k, v in chosen["freeze_psnr"].items()}
+        if "free_bodies" in chosen:
+            self.free_body_report = chosen["free_bodies"]
 
     # ----- checkpoints -----------------------------------------------------------------------------
     def save(self) -> Path:
@@ -309,6 +313,7 @@ class Trainer:
             "freeze_threshold": self.model.freeze_threshold,
             "static_mask": self.model.static_mask,
             "unseen_mask": self.model.unseen_mask,
+            "free_bodies": self.model.free_bodies,
             "model": self.model.state_dict(),
             "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
             "field_optimizer": self.field_opt.state_dict() if self.field_opt is not None else None,
@@ -340,6 +345,7 @@ class Trainer:
         if not changed:  # else calibrated again with the new settings when the steps are done
             self.model.freeze_threshold = ckpt.get("freeze_threshold")
             self.model.unseen_mask = ckpt.get("unseen_mask")
+            self.model.free_bodies = ckpt.get("free_bodies")
         if self.model.static_mask is not None:
             self.static_fraction = float(self.model.static_mask.float().mean())
         self.timings.update(ckpt.get("timings", {}))
@@ -359,6 +365,10 @@ AFTER_TRAINING = frozenset(
         "dynamic.surface_neighbours",
         "dynamic.freeze_static_threshold",
         "dynamic.freeze_static_auto",
+        "dynamic.free_bodies",
+        "dynamic.free_body_window",
+        "dynamic.free_body_backtest",
+        "dynamic.free_body_margin",
     }
 )
 """Settings that only the calibration after the last step and the rendering read: a run resumed with
@@ -409,6 +419,7 @@ def load_run(run: str | Path, device: str = "auto") -> tuple[TraceModel, TrainCo
     model.freeze_threshold = ckpt.get("freeze_threshold")
     model.set_static_mask(ckpt.get("static_mask"))
     model.unseen_mask = ckpt.get("unseen_mask")
+    model.free_bodies = ckpt.get("free_bodies")
     if Path(cfg.data).is_dir():  # a checkpoint written before training ended, or by an older version
         calibrate_after_training(model, ckpt["t_max"])
     meta = {

@@ -1,0 +1,113 @@
+"""Free rigid bodies: the future of a part that moves as one body under a constant acceleration.
+
+A spinning body that falls is what TRACE's per-particle physics cannot hold: its equivalent
+acceleration ``a_bar = a_c - w x v_c(t)`` changes in time, and what f_trd learns of it at the end of
+the training span is off (docs/PHYSICS.md, "A free body per part"). A free body holds it exactly:
+a pivot on a parabola ``c0 + v s + a s^2 / 2`` (gravity) and a constant spin ``w`` about it. It is
+the wrong model for a part on a hinge, which the learned physics holds by construction, so it is
+chosen per part on the training images after training (``train/calibrate.py``,
+``choose_free_bodies``); the parts are found without labels (``rigid_components``).
+
+Pure functions on tensors; the model applies the chosen bodies in ``TraceModel.state_at``.
+Not in the paper (``dynamic.free_bodies``; off in ``paper``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .so3 import quat_multiply, quat_normalize, rodrigues, rotmat_to_quat, skew
+
+
+@dataclass
+class FreeBody:
+    """A rigid body's motion from its state at time ``t0``: pivot ``c0`` moving at ``v + a s`` (``s =
+    t - t0``) and turning about it at the constant angular velocity ``w`` (world frame, float64)."""
+
+    c0: torch.Tensor
+    v: torch.Tensor
+    a: torch.Tensor
+    w: torch.Tensor
+
+    def as_tensor(self) -> torch.Tensor:
+        """[12]: c0, v, a, w (as stored in a checkpoint)."""
+        return torch.cat([self.c0, self.v, self.a, self.w])
+
+    @classmethod
+    def from_tensor(cls, row: torch.Tensor) -> FreeBody:
+        return cls(*row.double().reshape(4, 3))
+
+
+def fit_parabola(times: torch.Tensor, points: torch.Tensor, t0: float) -> tuple[torch.Tensor, ...]:
+    """Least-squares ``c(t) = c0 + v s + a s^2 / 2`` (``s = t - t0``) through ``points`` [K, 3] at
+    ``times`` [K]; returns (c0, v, a) in float64. Needs three distinct times."""
+    s = times.double() - t0
+    basis = torch.stack([torch.ones_like(s), s, 0.5 * s * s], 1)
+    coef = torch.linalg.lstsq(basis, points.double()).solution
+    return coef[0], coef[1], coef[2]
+
+
+def fit_rigid_velocity(x: torch.Tensor, u: torch.Tensor, pivot: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """(v, w) of the rigid motion ``u = v + w x (x - pivot)`` that best fits the velocities ``u`` [N, 3]
+    of the points ``x`` [N, 3] (least squares, float64)."""
+    r = x.double() - pivot.double().to(x.device)
+    eye = torch.eye(3, dtype=r.dtype, device=r.device).expand(len(r), 3, 3)
+    system = torch.cat([eye, -skew(r)], -1).reshape(-1, 6)
+    v_w = torch.linalg.lstsq(system.cpu(), u.double().reshape(-1, 1).cpu()).solution[:, 0]
+    return v_w[:3], v_w[3:]
+
+
+def move(
+    means: torch.Tensor, quats: torch.Tensor, body: FreeBody, s: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The Gaussians (``means``, ``quats`` at ``t0``) of ``body``, ``s`` later: turned by ``w s`` about
+    the pivot, which has moved along its parabola."""
+    turn = rodrigues(body.w * s)
+    centre = body.c0 + body.v * s + 0.5 * body.a * s * s
+    dtype, dev = means.dtype, means.device
+    new_means = (means.double() - body.c0.to(dev)) @ turn.to(dev).T + centre.to(dev)
+    q = rotmat_to_quat(turn).to(dtype=quats.dtype, device=dev)[None].expand(len(quats), 4)
+    return new_means.to(dtype), quat_multiply(q, quat_normalize(quats))
+
+
+def rigid_components(
+    x: torch.Tensor,
+    moved: torch.Tensor,
+    u: torch.Tensor,
+    speed_floor: float,
+    neighbours: int = 8,
+    min_size: int = 20,
+) -> torch.Tensor:
+    """[N] label of each point's rigid body, found without labels (0: none). The points ``moved`` [N]
+    (bool) are joined to their ``neighbours`` nearest moved points where their relative velocity (from
+    ``u`` [N, 3]) stays perpendicular to their separation, as a rigid pair's does (a stretching rate
+    under a fifth of the relative speed plus ``speed_floor``); the connected groups of at least
+    ``min_size`` points are the bodies, labelled 1, 2, ... by decreasing size. A necessary test, not a
+    sufficient one: two bodies that slide past each other keep the distances of the pairs across the
+    contact and may be joined, as may a part and what it hangs on by a hinge."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    labels = torch.zeros(len(x), dtype=torch.long)
+    idx = torch.nonzero(moved.cpu()).squeeze(1).numpy()
+    if len(idx) < max(min_size, 2):
+        return labels
+    points, vel = x.detach().double().cpu().numpy()[idx], u.detach().double().cpu().numpy()[idx]
+    k = min(neighbours, len(idx) - 1)
+    _, nn = cKDTree(points).query(points, k + 1)
+    i, j = np.repeat(np.arange(len(idx)), k), nn[:, 1:].reshape(-1)
+    sep, rel = points[i] - points[j], vel[i] - vel[j]
+    stretch = np.abs((rel * sep).sum(1)) / np.maximum(np.linalg.norm(sep, axis=1), 1e-12)
+    keep = stretch < 0.2 * np.linalg.norm(rel, axis=1) + speed_floor
+    graph = coo_matrix((np.ones(int(keep.sum())), (i[keep], j[keep])), shape=(len(idx), len(idx)))
+    _, comp = connected_components(graph, directed=False)
+    sizes = np.bincount(comp)
+    order = [c for c in np.argsort(-sizes, kind="stable") if sizes[c] >= min_size]
+    label_of = np.zeros(len(sizes), dtype=np.int64)
+    label_of[order] = np.arange(1, len(order) + 1)
+    labels[torch.as_tensor(idx)] = torch.as_tensor(label_of[comp])
+    return labels

@@ -1,0 +1,86 @@
+"""Free rigid bodies: the fits recover exact motion, the motion is rigid and follows its parabola, and
+the parts are found by their velocities."""
+
+import torch
+from scipy.spatial.transform import Rotation
+
+from tracegs.physics.free_body import FreeBody, fit_parabola, fit_rigid_velocity, move, rigid_components
+from tracegs.physics.so3 import quat_normalize, quat_to_rotmat, skew
+
+torch.manual_seed(0)
+DT = torch.float64
+
+
+def test_parabola_fit_is_exact_on_a_parabola():
+    c0, v, a = (
+        torch.tensor([0.3, -1.0, 2.0], dtype=DT),
+        torch.tensor([1.0, 0.5, 2.0], dtype=DT),
+        torch.tensor([0.0, 0.0, -9.81], dtype=DT),
+    )
+    times = torch.linspace(0.2, 0.7, 9, dtype=DT)
+    s = (times - 0.7)[:, None]
+    points = c0 + v * s + 0.5 * a * s * s
+    fit = fit_parabola(times, points, 0.7)
+    for got, want in zip(fit, (c0, v, a), strict=True):
+        torch.testing.assert_close(got, want, rtol=0, atol=1e-9)
+
+
+def test_rigid_velocity_fit_recovers_translation_and_spin():
+    x = torch.randn(50, 3, dtype=DT)
+    pivot = torch.tensor([1.0, 2.0, -0.5], dtype=DT)
+    v, w = torch.tensor([0.2, -0.1, 0.4], dtype=DT), torch.tensor([0.5, -2.0, 1.0], dtype=DT)
+    u = v + torch.cross(w.expand_as(x), x - pivot, dim=-1)
+    fit_v, fit_w = fit_rigid_velocity(x, u, pivot)
+    torch.testing.assert_close(fit_v, v, rtol=0, atol=1e-10)
+    torch.testing.assert_close(fit_w, w, rtol=0, atol=1e-10)
+
+
+def test_move_is_a_rigid_turn_about_the_pivot_on_its_parabola():
+    body = FreeBody(*(torch.randn(3, dtype=DT) for _ in range(4)))
+    means, quats = torch.randn(20, 3, dtype=DT), quat_normalize(torch.randn(20, 4, dtype=DT))
+    s = 0.37
+    new_means, new_quats = move(means, quats, body, s)
+    turn = torch.as_tensor(Rotation.from_rotvec((body.w * s).numpy()).as_matrix())
+    centre = body.c0 + body.v * s + 0.5 * body.a * s * s
+    torch.testing.assert_close(new_means, (means - body.c0) @ turn.T + centre, rtol=0, atol=1e-10)
+    torch.testing.assert_close(quat_to_rotmat(new_quats), turn @ quat_to_rotmat(quats), rtol=0, atol=1e-10)
+    # the pivot's velocity is v + a s, and the other points' differ from it by w x r
+    h = 1e-6
+    ahead, _ = move(means, quats, body, s + h)
+    behind, _ = move(means, quats, body, s - h)
+    r = new_means - centre
+    expected = body.v + body.a * s + r @ skew(body.w).T
+    torch.testing.assert_close((ahead - behind) / (2 * h), expected, rtol=0, atol=1e-6)
+    zero, same = move(means, quats, body, 0.0)
+    torch.testing.assert_close(zero, means, rtol=0, atol=1e-12)
+    torch.testing.assert_close(same, quats, rtol=0, atol=1e-12)
+
+
+def test_rigid_components_split_bodies_by_their_velocities():
+    """A spinning disc beside a block that moves away from it: two bodies; the still points get no
+    body. (Bodies that slide past each other keep the distance of the pairs across their contact, and
+    may be joined: the backtest of ``choose_free_bodies`` is what guards against such a group.)"""
+    g = torch.linspace(-0.5, 0.5, 8, dtype=DT)
+    grid = torch.stack(torch.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2) * 0.1
+    disc = torch.cat([grid, torch.zeros(len(grid), 1, dtype=DT)], 1)
+    block = disc + torch.tensor([0.105, 0.0, 0.0], dtype=DT)
+    still = disc + torch.tensor([0.0, 0.3, 0.0], dtype=DT)
+    x = torch.cat([disc, block, still])
+    w = torch.tensor([0.0, 0.0, 0.5], dtype=DT)
+    u = torch.cat(
+        [
+            torch.cross(w.expand_as(disc), disc, dim=-1),
+            torch.tensor([0.8, 0.0, 0.3], dtype=DT).expand_as(block),
+            torch.zeros_like(still),
+        ]
+    )
+    moved = torch.cat([torch.ones(2 * len(grid), dtype=torch.bool), torch.zeros(len(grid), dtype=torch.bool)])
+    labels = rigid_components(x, moved, u, speed_floor=0.01)
+    n = len(grid)
+    assert set(labels[:n].tolist()) == {labels[0].item()} and labels[0] > 0
+    assert set(labels[n : 2 * n].tolist()) == {labels[n].item()} and labels[n] > 0
+    assert labels[0] != labels[n]
+    assert (labels[2 * n :] == 0).all()
+    # one velocity field for both (they move as one body): one component
+    joined = rigid_components(x, moved, torch.zeros_like(u), speed_floor=0.01)
+    assert set(joined[: 2 * n].tolist()) == {1}
