@@ -13,6 +13,10 @@ far as the blades' own trajectory error). Below which displacement a Gaussian co
 on the scene's scale and on how noisy f_defo is, so the threshold is chosen per run by a
 pseudo-extrapolation on the training data: start the physics ``horizon`` frames before the last
 training time, integrate to the last few training times, and score the training cameras there.
+
+``choose_free_bodies`` (``dynamic.free_bodies``, off in every preset): the rigid groups of moving
+Gaussians whose future a free body (``physics/free_body.py``) takes over, those it predicts the last
+training images better than the learned physics does, in a backtest from before the handover.
 """
 
 from __future__ import annotations
