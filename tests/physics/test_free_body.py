@@ -4,7 +4,14 @@ the parts are found by their velocities."""
 import torch
 from scipy.spatial.transform import Rotation
 
-from tracegs.physics.free_body import FreeBody, fit_parabola, fit_rigid_velocity, move, rigid_components
+from tracegs.physics.free_body import (
+    FreeBody,
+    fit_parabola,
+    fit_rigid_velocity,
+    isolation,
+    move,
+    rigid_components,
+)
 from tracegs.physics.so3 import quat_normalize, quat_to_rotmat, skew
 
 torch.manual_seed(0)
@@ -84,3 +91,13 @@ def test_rigid_components_split_bodies_by_their_velocities():
     # one velocity field for both (they move as one body): one component
     joined = rigid_components(x, moved, torch.zeros_like(u), speed_floor=0.01)
     assert set(joined[: 2 * n].tolist()) == {1}
+
+
+def test_isolation_counts_spacings_to_the_nearest_still_point():
+    g = torch.linspace(0, 0.9, 10, dtype=DT)
+    line = torch.stack([g, torch.zeros_like(g), torch.zeros_like(g)], 1)  # spacing 0.1
+    for offset, want in ((3.0, 21.0), (1.0, 1.0)):  # the group's nearest points lie offset - 0.9 away
+        x = torch.cat([line, line + torch.tensor([offset, 0.0, 0.0], dtype=DT)])
+        group = torch.arange(20) >= 10
+        assert abs(isolation(x, group, ~group, quantile=0.0) - want) < 1e-9
+    assert isolation(x, group, torch.zeros(20, dtype=torch.bool)) == float("inf")  # nothing still

@@ -5,8 +5,9 @@ acceleration ``a_bar = a_c - w x v_c(t)`` changes in time, and what f_trd learns
 the training span is off (docs/PHYSICS.md, "A free body per part"). A free body holds it exactly:
 a pivot on a parabola ``c0 + v s + a s^2 / 2`` (gravity) and a constant spin ``w`` about it. It is
 the wrong model for a part on a hinge, which the learned physics holds by construction, so it is
-chosen per part on the training images after training (``train/calibrate.py``,
-``choose_free_bodies``); the parts are found without labels (``rigid_components``).
+chosen per part after training (``train/calibrate.py``, ``choose_free_bodies``): a part that touches
+nothing still (``isolation``) and whose free body does not predict the last training images clearly
+worse than the learned physics. The parts are found without labels (``rigid_components``).
 
 Pure functions on tensors; the model applies the chosen bodies in ``TraceModel.state_at``.
 Not in the paper (``dynamic.free_bodies``; off in ``paper``).
@@ -111,3 +112,19 @@ def rigid_components(
     label_of[order] = np.arange(1, len(order) + 1)
     labels[torch.as_tensor(idx)] = torch.as_tensor(label_of[comp])
     return labels
+
+
+def isolation(x: torch.Tensor, group: torch.Tensor, still: torch.Tensor, quantile: float = 0.05) -> float:
+    """How far the points ``group`` [N] (bool) of ``x`` [N, 3] lie from the ``still`` ones, in units of
+    the points' median nearest-neighbour spacing: the ``quantile`` of the group's distances to the
+    nearest still point (a few strays do not count). ``inf`` when nothing is still. A part on a hinge or
+    a rail touches what holds it (a few spacings); a body in flight lies far from everything still."""
+    from scipy.spatial import cKDTree
+
+    points = x.detach().double().cpu().numpy()
+    group, still = group.cpu().numpy(), still.cpu().numpy()
+    if not still.any() or not group.any():
+        return float("inf")
+    spacing = float(np.median(cKDTree(points).query(points, 2)[0][:, 1]))
+    distance = cKDTree(points[still]).query(points[group], 1)[0]
+    return float(np.quantile(distance, quantile)) / max(spacing, 1e-12)

@@ -14,9 +14,10 @@ on the scene's scale and on how noisy f_defo is, so the threshold is chosen per 
 pseudo-extrapolation on the training data: start the physics ``horizon`` frames before the last
 training time, integrate to the last few training times, and score the training cameras there.
 
-``choose_free_bodies`` (``dynamic.free_bodies``, off in every preset): the rigid groups of moving
-Gaussians whose future a free body (``physics/free_body.py``) takes over, those it predicts the last
-training images better than the learned physics does, in a backtest from before the handover.
+``choose_free_bodies`` (``dynamic.free_bodies``): the rigid groups of moving Gaussians whose future
+a free body (``physics/free_body.py``) takes over: those that touch nothing still, and whose free
+body, in a backtest from before the handover, predicts the last training images about as well as the
+learned physics or better.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import torch
 from ..data.blender import load_image, load_scene
 from ..data.dataset import ViewDataset
 from ..eval.metrics import mae_psnr, mse
-from ..physics.free_body import FreeBody, fit_parabola, fit_rigid_velocity, move, rigid_components
+from ..physics.free_body import FreeBody, fit_parabola, fit_rigid_velocity, isolation, move, rigid_components
 from ..physics.integrate import particle_velocity
 from ..physics.so3 import quat_normalize
 from ..render.sh import SH_C0
@@ -203,8 +204,9 @@ def choose_free_bodies(model, data: Path, downscale: int, t_max: float, extent: 
     """The free bodies of a trained model (``dynamic.free_bodies``): ``({"t0", "labels", "bodies"},
     report)``. The parts are the rigid groups (``rigid_components``) of the Gaussians that f_defo moves
     by more than 0.25% of the scene ``extent`` over the window before the handover t0, by f_trd's
-    velocities at t0. Each is backtested on the training images: a free body fitted ``free_body_backtest``
-    frames before t0 must come nearer them than the learned physics from there by ``free_body_margin``.
+    velocities at t0. A part is free when it lies ``free_body_isolation`` spacings from every still
+    Gaussian (``isolation``) and a free body fitted ``free_body_backtest`` frames before t0 predicts the
+    training images from there no worse than ``free_body_tolerance`` times the learned physics does.
     ``labels`` [N]: 0 = the learned physics, k = ``bodies[k - 1]`` (c0, v, a, w at t0; [K, 12])."""
     dyn = model.cfg.dynamic
     t0 = model.handover_time(t_max)
@@ -224,17 +226,19 @@ def choose_free_bodies(model, data: Path, downscale: int, t_max: float, extent: 
     parts = rigid_components(
         x0, moved, particle_velocity(x0, params.velocity, params.angular_velocity), 0.0025 * extent
     ).to(dev)
-    backtest = _Backtest(model, data, downscale, t1, t_max) if int(parts.max()) > 0 else None
+    backtest = None
     chosen, report = [], []
     for label in range(1, int(parts.max()) + 1):
         rows = parts == label
-        learned = backtest.error(rows, None)
-        free = backtest.error(rows, fit_free_body(model, rows, t1, dyn.free_body_window))
-        keep = free < (1 - dyn.free_body_margin) * learned
-        report.append(
-            {"gaussians": int(rows.sum()), "mse_learned": learned, "mse_free_body": free, "free_body": keep}
-        )
-        if keep:
+        entry = {"gaussians": int(rows.sum()), "isolation": isolation(x0, rows, ~moved), "free_body": False}
+        report.append(entry)
+        if entry["isolation"] <= dyn.free_body_isolation:
+            continue  # it touches something still: a hinge or a rail, which the learned physics holds
+        backtest = backtest or _Backtest(model, data, downscale, t1, t_max)
+        entry["mse_learned"] = backtest.error(rows, None)
+        entry["mse_free_body"] = backtest.error(rows, fit_free_body(model, rows, t1, dyn.free_body_window))
+        entry["free_body"] = entry["mse_free_body"] < dyn.free_body_tolerance * entry["mse_learned"]
+        if entry["free_body"]:
             chosen.append(rows)
     if not chosen:
         return none, report

@@ -368,7 +368,8 @@ AFTER_TRAINING = frozenset(
         "dynamic.free_bodies",
         "dynamic.free_body_window",
         "dynamic.free_body_backtest",
-        "dynamic.free_body_margin",
+        "dynamic.free_body_isolation",
+        "dynamic.free_body_tolerance",
     }
 )
 """Settings that only the calibration after the last step and the rendering read: a run resumed with
