@@ -145,7 +145,7 @@ class DynamicStageConfig:
     that is free the future of a free body, a pivot on a parabola and a constant spin
     (``physics/free_body.py``): a part is free when it touches nothing still (``free_body_isolation``)
     and its free body, started ``free_body_backtest`` frames before the handover, predicts the training
-    images up to t_max no worse than ``free_body_tolerance`` times the learned physics' error. The
+    images up to t_max with less than ``free_body_tolerance`` times the learned physics' error. The
     learned physics cannot hold a spinning body that falls (docs/PHYSICS.md, "A free body per part").
     Not in the paper; off = the paper's extrapolation. Render time only."""
     free_body_window: int = 12
@@ -158,7 +158,7 @@ class DynamicStageConfig:
     """A part is free only if 95% of its Gaussians lie farther than this many Gaussian spacings (the
     median nearest-neighbour distance) from every still Gaussian at the handover: a part on a hinge or
     a rail touches what holds it."""
-    free_body_tolerance: float = 1.5
+    free_body_tolerance: float = 1.25
     """A free part's free body is kept while its backtest error (mean squared, on the training images)
     stays under this multiple of the learned physics'. Over a few frames the learned physics is about
     as good as a free body even where its accelerations are wrong (its error grows as the square of
