@@ -22,6 +22,7 @@ learned physics or better.
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from pathlib import Path
 
@@ -230,9 +231,11 @@ def choose_free_bodies(model, data: Path, downscale: int, t_max: float, extent: 
     chosen, report = [], []
     for label in range(1, int(parts.max()) + 1):
         rows = parts == label
-        entry = {"gaussians": int(rows.sum()), "isolation": isolation(x0, rows, ~moved), "free_body": False}
+        apart = isolation(x0, rows, ~moved)  # inf when nothing is still; JSON (summary.json) says null
+        entry = {"gaussians": int(rows.sum()), "isolation": apart if math.isfinite(apart) else None}
+        entry["free_body"] = False
         report.append(entry)
-        if entry["isolation"] <= dyn.free_body_isolation:
+        if apart <= dyn.free_body_isolation:
             continue  # it touches something still: a hinge or a rail, which the learned physics holds
         backtest = backtest or _Backtest(model, data, downscale, t1, t_max)
         entry["mse_learned"] = backtest.error(rows, None)
