@@ -14,7 +14,7 @@ import contextlib
 import torch
 from torch import nn
 
-from ..physics.free_body import FreeBody, move
+from ..physics.free_body import apply_free_bodies
 from ..physics.integrate import (
     DynamicsParams,
     acceleration_consistency,
@@ -308,14 +308,7 @@ class TraceModel(nn.Module):
         labels = bodies["labels"].to(state["means"].device)
         if abs(bodies["t0"] - t0) > 1e-9 or labels.shape[0] != state["means"].shape[0]:
             return state  # chosen for another handover or another set of Gaussians
-        start = self.deform(t0)
-        means, quats = state["means"].clone(), quat_normalize(state["quats"]).clone()
-        for k, row in enumerate(bodies["bodies"]):
-            rows = labels == k + 1
-            means[rows], quats[rows] = move(
-                start["means"][rows], start["quats"][rows], FreeBody.from_tensor(row), t - t0
-            )
-        return {**state, "means": means, "quats": quats}
+        return apply_free_bodies(state, self.deform(t0), labels, bodies["bodies"], t - t0)
 
     def handover_time(self, t_max: float) -> float:
         """Last time rendered by f_defo alone; later times are integrated from it."""

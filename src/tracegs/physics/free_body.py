@@ -74,6 +74,25 @@ def move(
     return new_means.to(dtype), quat_multiply(q, quat_normalize(quats))
 
 
+def apply_free_bodies(
+    state: dict[str, torch.Tensor],
+    start: dict[str, torch.Tensor],
+    labels: torch.Tensor,
+    bodies: torch.Tensor,
+    s: float,
+) -> dict[str, torch.Tensor]:
+    """``state`` with the Gaussians of each free body moved from their ``start`` (its time ``t0``) ``s``
+    later: ``labels`` [N] (0: left as they are, k: ``bodies[k - 1]``), ``bodies`` [K, 12] as
+    ``FreeBody.as_tensor``."""
+    means, quats = state["means"].clone(), quat_normalize(state["quats"]).clone()
+    for k, row in enumerate(bodies):
+        rows = labels == k + 1
+        means[rows], quats[rows] = move(
+            start["means"][rows], start["quats"][rows], FreeBody.from_tensor(row), s
+        )
+    return {**state, "means": means, "quats": quats}
+
+
 def rigid_components(
     x: torch.Tensor,
     moved: torch.Tensor,

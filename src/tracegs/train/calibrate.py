@@ -187,14 +187,23 @@ class _Backtest:
         return sum(errors) / max(len(errors), 1)
 
 
-def fit_free_body(model, rows: torch.Tensor, t0: float, window: int) -> FreeBody:
-    """The free body of the Gaussians ``rows`` at ``t0``: its pivot's parabola fitted to their centroid
-    under f_defo over the ``window`` frames before ``t0``, its spin the rigid motion that best fits
-    f_trd's particle velocities over them at ``t0``."""
+def window_means(model, t0: float, window: int) -> tuple[torch.Tensor, list[torch.Tensor]]:
+    """(times, f_defo's means at each): ``t0`` and the ``window`` frames before it (clamped at 0),
+    deformed once for every part fitted there."""
     times = torch.tensor([max(0.0, t0 - k * model.dt_max) for k in range(window + 1)], dtype=torch.float64)
-    centroids = torch.stack([model.deform(float(t))["means"][rows].double().mean(0) for t in times])
+    return times, [model.deform(float(t))["means"] for t in times]
+
+
+def fit_free_body(
+    model, rows: torch.Tensor, t0: float, path: tuple[torch.Tensor, list[torch.Tensor]]
+) -> FreeBody:
+    """The free body of the Gaussians ``rows`` at ``t0``: its pivot's parabola fitted to their centroid
+    under f_defo over the window ``path`` (``window_means``), its spin the rigid motion that best fits
+    f_trd's particle velocities over them at ``t0``."""
+    times, past = path
+    centroids = torch.stack([means[rows].double().mean(0) for means in past])
     c0, v, a = fit_parabola(times, centroids.cpu(), t0)
-    x = model.deform(t0)["means"][rows]
+    x = past[0][rows]
     params = model.query_dynamics(x, t0)
     _, w = fit_rigid_velocity(x, particle_velocity(x, params.velocity, params.angular_velocity), c0)
     return FreeBody(c0, v, a, w)
@@ -220,14 +229,14 @@ def choose_free_bodies(model, data: Path, downscale: int, t_max: float, extent: 
     t1 = t0 - dyn.free_body_backtest * model.dt_max
     if t1 - 2 * model.dt_max < -1e-9:  # too early in the span for a parabola before the backtest
         return none, []
-    x0 = model.deform(t0)["means"]
-    before = model.deform(max(0.0, t0 - dyn.free_body_window * model.dt_max))["means"]
+    path_t0 = window_means(model, t0, dyn.free_body_window)
+    x0, before = path_t0[1][0], path_t0[1][-1]
     moved = (x0 - before).norm(dim=-1) > 0.0025 * extent
     params = model.query_dynamics(x0, t0)
     parts = rigid_components(
         x0, moved, particle_velocity(x0, params.velocity, params.angular_velocity), 0.0025 * extent
     ).to(dev)
-    backtest = None
+    backtest = path_t1 = None
     chosen, report = [], []
     for label in range(1, int(parts.max()) + 1):
         rows = parts == label
@@ -237,9 +246,11 @@ def choose_free_bodies(model, data: Path, downscale: int, t_max: float, extent: 
         report.append(entry)
         if apart <= dyn.free_body_isolation:
             continue  # it touches something still: a hinge or a rail, which the learned physics holds
-        backtest = backtest or _Backtest(model, data, downscale, t1, t_max)
+        if backtest is None:
+            backtest = _Backtest(model, data, downscale, t1, t_max)
+            path_t1 = window_means(model, t1, dyn.free_body_window)
         entry["mse_learned"] = backtest.error(rows, None)
-        entry["mse_free_body"] = backtest.error(rows, fit_free_body(model, rows, t1, dyn.free_body_window))
+        entry["mse_free_body"] = backtest.error(rows, fit_free_body(model, rows, t1, path_t1))
         entry["free_body"] = entry["mse_free_body"] < dyn.free_body_tolerance * entry["mse_learned"]
         if entry["free_body"]:
             chosen.append(rows)
@@ -248,9 +259,7 @@ def choose_free_bodies(model, data: Path, downscale: int, t_max: float, extent: 
     labels = none["labels"].clone()
     for k, rows in enumerate(chosen):
         labels[rows] = k + 1
-    bodies = torch.stack(
-        [fit_free_body(model, rows, t0, dyn.free_body_window).as_tensor() for rows in chosen]
-    )
+    bodies = torch.stack([fit_free_body(model, rows, t0, path_t0).as_tensor() for rows in chosen])
     return {"t0": t0, "labels": labels, "bodies": bodies}, report
 
 
