@@ -154,6 +154,13 @@ class DynamicStageConfig:
     free_body_backtest: int = 8
     """Frames before the handover from which ``free_bodies`` backtests both models on the training
     images (up to t_max)."""
+    free_body_refine_steps: int = 150
+    """Adam steps that fit each free body (pivot, velocity, acceleration, spin, and where it is at the
+    handover) to the training images of its window, from the parabola fitted to f_defo's path and f_trd's spin
+    (``train/calibrate.py``, ``refine_free_body``); the backtest's body to the images before its start
+    only. 0 = off."""
+    free_body_refine_views: int = 8
+    """Random training views rendered at each of those steps."""
     free_body_isolation: float = 20.0
     """A part is free only if 95% of its Gaussians lie farther than this many Gaussian spacings (the
     median nearest-neighbour distance) from every still Gaussian at the handover: a part on a hinge or
@@ -304,8 +311,9 @@ def cpu_fast() -> TrainConfig:
         # least reliable at the span's end; validation future +0.91 / +0.14 dB on slider / fallingball
         # (docs/PHYSICS.md, "The consistency target over 8 frames").
         # Free bodies for the parts in flight (after training, render time only): validation future
-        # +4.50 / +4.67 dB on two trainings of fallingball, the other four scenes unchanged on both
-        # (docs/PHYSICS.md, "A free body per part")
+        # +4.50 / +4.67 dB on two trainings of fallingball, the other four scenes unchanged on both;
+        # fitted to the training images about the body's centre of mass, +1.5 dB more (docs/PHYSICS.md,
+        # "A free body per part")
         dynamic=DynamicStageConfig(
             acceleration_consistency=0.01, consistency_frames=8.0, skip_static=0.003, free_bodies=True
         ),

@@ -6,6 +6,7 @@ from scipy.spatial.transform import Rotation
 
 from tracegs.physics.free_body import (
     FreeBody,
+    centre_of_mass,
     fit_parabola,
     fit_rigid_velocity,
     isolation,
@@ -43,12 +44,12 @@ def test_rigid_velocity_fit_recovers_translation_and_spin():
 
 
 def test_move_is_a_rigid_turn_about_the_pivot_on_its_parabola():
-    body = FreeBody(*(torch.randn(3, dtype=DT) for _ in range(4)))
+    body = FreeBody(*(torch.randn(3, dtype=DT) for _ in range(5)))
     means, quats = torch.randn(20, 3, dtype=DT), quat_normalize(torch.randn(20, 4, dtype=DT))
     s = 0.37
     new_means, new_quats = move(means, quats, body, s)
     turn = torch.as_tensor(Rotation.from_rotvec((body.w * s).numpy()).as_matrix())
-    centre = body.c0 + body.v * s + 0.5 * body.a * s * s
+    centre = body.c0 + body.shift + body.v * s + 0.5 * body.a * s * s
     torch.testing.assert_close(new_means, (means - body.c0) @ turn.T + centre, rtol=0, atol=1e-10)
     torch.testing.assert_close(quat_to_rotmat(new_quats), turn @ quat_to_rotmat(quats), rtol=0, atol=1e-10)
     # the pivot's velocity is v + a s, and the other points' differ from it by w x r
@@ -58,9 +59,27 @@ def test_move_is_a_rigid_turn_about_the_pivot_on_its_parabola():
     r = new_means - centre
     expected = body.v + body.a * s + r @ skew(body.w).T
     torch.testing.assert_close((ahead - behind) / (2 * h), expected, rtol=0, atol=1e-6)
-    zero, same = move(means, quats, body, 0.0)
-    torch.testing.assert_close(zero, means, rtol=0, atol=1e-12)
+    zero, same = move(means, quats, body, 0.0)  # at t0 the body only shifted
+    torch.testing.assert_close(zero, means + body.shift, rtol=0, atol=1e-12)
     torch.testing.assert_close(same, quats, rtol=0, atol=1e-12)
+    torch.testing.assert_close(FreeBody.from_tensor(body.as_tensor()).as_tensor(), body.as_tensor())
+
+
+def test_centre_of_mass_is_the_solid_s_not_the_points_mean():
+    """Points on a sphere, one side sampled ten times as densely: their mean leans to that side, the
+    centre of the ball they bound does not. A box's centre; flat or too few points: their mean."""
+    centre = torch.tensor([0.3, -0.2, 1.0], dtype=DT)
+    d = torch.nn.functional.normalize(torch.randn(4000, 3, dtype=DT), dim=1)
+    d = torch.cat([d, d[d[:, 0] > 0.3].repeat(9, 1)])
+    points = centre + 0.5 * d
+    assert (points.mean(0) - centre).norm() > 0.1
+    torch.testing.assert_close(centre_of_mass(points), centre, rtol=0, atol=5e-3)
+    corners = torch.tensor([[x, y, z] for x in (0, 2) for y in (0, 1) for z in (0, 3)], dtype=DT)
+    lopsided = torch.cat([corners, corners[:1].repeat(50, 1) + 0.01 * torch.rand(50, 3, dtype=DT)])
+    torch.testing.assert_close(centre_of_mass(lopsided), torch.tensor([1.0, 0.5, 1.5], dtype=DT))
+    flat = torch.randn(30, 3, dtype=DT) * torch.tensor([1.0, 1.0, 0.0], dtype=DT)
+    torch.testing.assert_close(centre_of_mass(flat), flat.mean(0))
+    torch.testing.assert_close(centre_of_mass(points[:3]), points[:3].mean(0))
 
 
 def test_rigid_components_split_bodies_by_their_velocities():

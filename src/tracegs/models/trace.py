@@ -70,7 +70,7 @@ class TraceModel(nn.Module):
         self.free_bodies: dict | None = None
         """The parts moved as free bodies after the handover (``dynamic.free_bodies``; chosen after
         training by ``train/calibrate.py``): ``{"t0", "labels" [N] (0: the learned physics), "bodies"
-        [K, 12]}``; None: not chosen."""
+        [K, 15]}``; None: not chosen."""
         self._moving: torch.Tensor | None = None  # indices of the others
         # the rotation consistency's [N, k] neighbours, the means parameter they were found for and
         # their age in calls (a plain dict: a Parameter held as an attribute would join the module)

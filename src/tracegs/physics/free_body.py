@@ -22,24 +22,59 @@ import torch
 
 from .so3 import quat_multiply, quat_normalize, rodrigues, rotmat_to_quat, skew
 
+FREE_BODY_NUMBERS = 15
+"""A free body's numbers as stored (``FreeBody.as_tensor``)."""
+
 
 @dataclass
 class FreeBody:
-    """A rigid body's motion from its state at time ``t0``: pivot ``c0`` moving at ``v + a s`` (``s =
-    t - t0``) and turning about it at the constant angular velocity ``w`` (world frame, float64)."""
+    """A rigid body's motion from its state at time ``t0``: pivot ``c0`` (a point of the body as it is
+    at ``t0``) moving at ``v + a s`` (``s = t - t0``) from ``c0 + shift`` and turning about it at the
+    constant angular velocity ``w`` (world frame, float64). ``shift`` moves the whole body at ``t0``:
+    where the images put it rather than f_defo (``train/calibrate.py``, ``refine_free_body``)."""
 
     c0: torch.Tensor
     v: torch.Tensor
     a: torch.Tensor
     w: torch.Tensor
+    shift: torch.Tensor | None = None
+
+    def __post_init__(self):
+        if self.shift is None:
+            self.shift = torch.zeros_like(self.c0)
 
     def as_tensor(self) -> torch.Tensor:
-        """[12]: c0, v, a, w (as stored in a checkpoint)."""
-        return torch.cat([self.c0, self.v, self.a, self.w])
+        """[FREE_BODY_NUMBERS]: c0, v, a, w, shift (as stored in a checkpoint)."""
+        return torch.cat([self.c0, self.v, self.a, self.w, self.shift])
 
     @classmethod
     def from_tensor(cls, row: torch.Tensor) -> FreeBody:
-        return cls(*row.double().reshape(4, 3))
+        return cls(*row.double().reshape(FREE_BODY_NUMBERS // 3, 3))
+
+
+def centre_of_mass(points: torch.Tensor) -> torch.Tensor:
+    """[3] float64: the centre of mass of the solid that the points [N, 3] bound, taken as their convex
+    hull filled uniformly; the points' mean where they span no volume (fewer than 4, or flat).
+
+    A free body turns about its centre of mass. The mean of its Gaussians is not that point: they lie
+    on the surface the cameras saw, some sides more densely than others (`fallingball`'s ball, radius
+    0.2: the mean 5 cm off its centre, the hull's centroid under 1 cm), and a free body turned about a
+    wrong pivot sweeps that offset around as it spins."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    p = points.detach().double().cpu()
+    if len(p) < 4:
+        return p.mean(0)
+    try:
+        hull = ConvexHull(p.numpy())
+    except (QhullError, ValueError):
+        return p.mean(0)
+    origin = p[torch.as_tensor(hull.vertices)].mean(0)
+    a, b, c = (p[torch.as_tensor(hull.simplices[:, k])] - origin for k in range(3))
+    volume = torch.linalg.det(torch.stack([a, b, c], 1)).abs() / 6  # the tetrahedra on the origin
+    if float(volume.sum()) <= 1e-12 * float((p - p.mean(0)).norm(dim=1).max()) ** 3:
+        return p.mean(0)
+    return origin + ((a + b + c) / 4 * volume[:, None]).sum(0) / volume.sum()
 
 
 def fit_parabola(times: torch.Tensor, points: torch.Tensor, t0: float) -> tuple[torch.Tensor, ...]:
@@ -67,7 +102,7 @@ def move(
     """The Gaussians (``means``, ``quats`` at ``t0``) of ``body``, ``s`` later: turned by ``w s`` about
     the pivot, which has moved along its parabola."""
     turn = rodrigues(body.w * s)
-    centre = body.c0 + body.v * s + 0.5 * body.a * s * s
+    centre = body.c0 + body.shift + body.v * s + 0.5 * body.a * s * s
     dtype, dev = means.dtype, means.device
     new_means = (means.double() - body.c0.to(dev)) @ turn.to(dev).T + centre.to(dev)
     q = rotmat_to_quat(turn).to(dtype=quats.dtype, device=dev)[None].expand(len(quats), 4)
@@ -82,7 +117,7 @@ def apply_free_bodies(
     s: float,
 ) -> dict[str, torch.Tensor]:
     """``state`` with the Gaussians of each free body moved from their ``start`` (its time ``t0``) ``s``
-    later: ``labels`` [N] (0: left as they are, k: ``bodies[k - 1]``), ``bodies`` [K, 12] as
+    later: ``labels`` [N] (0: left as they are, k: ``bodies[k - 1]``), ``bodies`` [K, 15] as
     ``FreeBody.as_tensor``."""
     means, quats = state["means"].clone(), quat_normalize(state["quats"]).clone()
     for k, row in enumerate(bodies):

@@ -31,7 +31,7 @@ from ..models.gaussians import create_gaussians, empty_like_params, random_gauss
 from ..models.trace import TraceModel
 from ..render.rendering import resolve_backend
 from ..utils import atomic_torch_save, atomic_write_text, resolve_device, seed_everything, synchronize
-from .calibrate import calibrate_after_training
+from .calibrate import calibrate_after_training, stored_free_bodies
 from .losses import photometric_loss
 from .optim import field_lrs, field_optimizer, gaussian_optimizers, means_lr, set_group_lrs, set_lr
 from .scene_frame import default_aabb, field_frame
@@ -345,7 +345,7 @@ class Trainer:
         if not changed:  # else calibrated again with the new settings when the steps are done
             self.model.freeze_threshold = ckpt.get("freeze_threshold")
             self.model.unseen_mask = ckpt.get("unseen_mask")
-            self.model.free_bodies = ckpt.get("free_bodies")
+            self.model.free_bodies = stored_free_bodies(ckpt.get("free_bodies"))
         if self.model.static_mask is not None:
             self.static_fraction = float(self.model.static_mask.float().mean())
         self.timings.update(ckpt.get("timings", {}))
@@ -370,6 +370,8 @@ AFTER_TRAINING = frozenset(
         "dynamic.free_body_backtest",
         "dynamic.free_body_isolation",
         "dynamic.free_body_tolerance",
+        "dynamic.free_body_refine_steps",
+        "dynamic.free_body_refine_views",
     }
 )
 """Settings that only the calibration after the last step and the rendering read: a run resumed with
@@ -420,7 +422,7 @@ def load_run(run: str | Path, device: str = "auto") -> tuple[TraceModel, TrainCo
     model.freeze_threshold = ckpt.get("freeze_threshold")
     model.set_static_mask(ckpt.get("static_mask"))
     model.unseen_mask = ckpt.get("unseen_mask")
-    model.free_bodies = ckpt.get("free_bodies")
+    model.free_bodies = stored_free_bodies(ckpt.get("free_bodies"))
     if Path(cfg.data).is_dir():  # a checkpoint written before training ended, or by an older version
         calibrate_after_training(model, ckpt["t_max"])
     meta = {
