@@ -2,12 +2,14 @@
 
 import json
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
 
 from tracegs.eval.physics import physics_errors
+from tracegs.physics.free_body import FreeBody
 from tracegs.physics.integrate import zero_params
 from tracegs.physics.so3 import rodrigues
 
@@ -101,3 +103,16 @@ def test_omega_over_span_follows_the_learned_drift(tmp_path):
         assert blade["omega_gt_norm"] == pytest.approx(2.0)
         assert blade["omega_rel_error"] == pytest.approx(0.2 * r["t"], rel=1e-5)
         assert "1" not in r["parts"]  # the static body has no rotation to compare
+
+
+def test_a_free_body_s_spin_is_reported_where_it_moves_the_part(tmp_path):
+    """Gaussians moved by a free body after the handover turn at its spin, not f_trd's."""
+    points, ids = _write_gt(tmp_path)
+    model = StandIn(points, ids, 2.0, w_learned=1.0)
+    model.cfg = SimpleNamespace(dynamic=SimpleNamespace(free_bodies=True))
+    body = FreeBody(*(torch.zeros(3, dtype=torch.float64) for _ in range(3)), torch.tensor([0.0, 0.0, 2.0]))
+    labels = torch.tensor(ids == 2, dtype=torch.long)
+    model.free_bodies = {"t0": 0.7, "labels": labels, "bodies": body.as_tensor()[None]}
+    assert physics_errors(model, 0.75, tmp_path, [1.0])["parts"]["2"]["omega_rel_error"] < 1e-6
+    model.cfg.dynamic.free_bodies = False  # switched off: f_trd's spin, half the truth
+    assert physics_errors(model, 0.75, tmp_path, [1.0])["parts"]["2"]["omega_rel_error"] == pytest.approx(0.5)

@@ -3,8 +3,9 @@
 - 3D trajectory error: every Gaussian within ``radius`` of the ground-truth surface at t_max is given
   the rigid motion of the part it lies on; its predicted position at each future time is compared with
   where that motion takes it.
-- Angular velocity: the learned w of each part's Gaussians at t_max (median vector) against the
-  closed form (w0 + alpha t) * axis: the angle between axes and the relative magnitude error; and
+- Angular velocity: the w each part's Gaussians turn at from t_max (median vector; f_trd's, or the
+  free body's where one moves them) against the closed form (w0 + alpha t) * axis: the angle between
+  axes and the relative magnitude error; and
   (``omega_over_span``) the same at several query times of the training span, which shows where in
   time f_trd is accurate (the extrapolation starts from its value at the handover time).
 N: Gaussians, M: ground-truth points, P: parts, T: times.
@@ -17,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
+
+from ..physics.free_body import FreeBody
 
 
 def _gt(data: Path):
@@ -80,7 +83,7 @@ def physics_errors(model, t_max: float, data: Path, times: list[float], radius: 
             rel = T_t[p - 1] @ np.linalg.inv(T_start[p - 1])
             err = (x_pred[sel] - _transform(rel, x_start[sel])).norm(dim=-1).mean()
             per_time[p].append({"t": t, "error": float(err)})
-    omega = _learned_angular_velocity(model, x_start, t_max)
+    omega = _spin_at(model, x_start, t_max)
     motions = _motions(data)
     for p in parts:
         sel = owner == p
@@ -117,6 +120,25 @@ def _omega_over_span(model, t_max: float, gt, motions: list[dict], radius: float
                 }
         rows.append(row)
     return rows
+
+
+def _spin_at(model, means: torch.Tensor, t: float) -> torch.Tensor | None:
+    """[N, 3] the angular velocity the future turns each Gaussian at, from ``t`` (after the handover):
+    f_trd's, or its free body's where one moves it (``dynamic.free_bodies``)."""
+    omega = _learned_angular_velocity(model, means, t)
+    bodies = getattr(model, "free_bodies", None)
+    if (
+        omega is None
+        or bodies is None
+        or not model.cfg.dynamic.free_bodies
+        or len(omega) != len(bodies["labels"])
+    ):
+        return omega
+    omega = omega.clone()
+    labels = bodies["labels"].to(omega.device)
+    for k, row in enumerate(bodies["bodies"]):
+        omega[labels == k + 1] = FreeBody.from_tensor(row).w.to(omega)
+    return omega
 
 
 def _learned_angular_velocity(model, means: torch.Tensor, t: float) -> torch.Tensor | None:

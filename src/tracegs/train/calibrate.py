@@ -266,13 +266,13 @@ def refine_free_body(
     from scipy.spatial import cKDTree
 
     pairs = [(t, camera, gt) for t, views in frames.views.items() for camera, gt in views]
-    if steps <= 0 or not pairs or int(rows.sum()) < 2:
+    span = max((abs(t - t0) for t in frames.views), default=0.0)
+    if steps <= 0 or span <= 0 or int(rows.sum()) < 2:
         return body
     means, quats = start["means"][rows].detach(), start["quats"][rows].detach()
     points = means.double()
     radius = float((points - points.mean(0)).square().sum(-1).mean().sqrt())
     spacing = float(np.median(cKDTree(points.cpu().numpy()).query(points.cpu().numpy(), 2)[0][:, 1]))
-    span = max(abs(t - t0) for t in frames.views)
     base = torch.stack([body.v, body.a, body.w, body.shift])
     unit = torch.tensor(
         [1.0 / span, 2.0 / span**2, 1.0 / (span * max(radius, 1e-9)), 1.0], dtype=torch.float64
