@@ -12,6 +12,7 @@ from tracegs.physics.free_body import (
     isolation,
     move,
     rigid_components,
+    split_rigid,
 )
 from tracegs.physics.so3 import quat_normalize, quat_to_rotmat, skew
 
@@ -120,3 +121,31 @@ def test_isolation_counts_spacings_to_the_nearest_still_point():
         group = torch.arange(20) >= 10
         assert abs(isolation(x, group, ~group, quantile=0.0) - want) < 1e-9
     assert isolation(x, group, torch.zeros(20, dtype=torch.bool)) == float("inf")  # nothing still
+
+
+def test_split_rigid_finds_the_parts_of_a_hinged_body():
+    """A box that drifts, with a plate on a hinge along one edge turning as it drifts: one connected
+    group, two rigid motions; the split gives the box and the plate (the points next to the hinge,
+    which barely move apart, may go either way). A body that spins as one is one part."""
+    gen = torch.Generator().manual_seed(0)
+    box = torch.rand(1500, 3, generator=gen, dtype=DT) * 0.4
+    plate = torch.rand(600, 3, generator=gen, dtype=DT) * torch.tensor([0.4, 0.4, 0.01], dtype=DT)
+    plate = plate + torch.tensor([0.4, 0.0, 0.4], dtype=DT)  # from the box's top edge at x = 0.4
+    x = torch.cat([box, plate])
+    drift = torch.tensor([0.12, 0.08, 0.06], dtype=DT)
+    hinge, w = torch.tensor([0.4, 0.0, 0.4], dtype=DT), torch.tensor([0.0, 1.0, 0.0], dtype=DT)
+    u = torch.cat([drift.expand_as(box), drift + torch.cross(w.expand_as(plate), plate - hinge, dim=-1)])
+    u = u + 0.003 * torch.randn(u.shape, generator=gen, dtype=DT)  # a learned field's noise
+    labels = split_rigid(x, u, floor=0.005)
+    assert int(labels.max()) == 2
+    far = (x - hinge)[:, [0, 2]].norm(dim=1) > 0.05  # away from the hinge line
+    on_plate = torch.arange(len(x)) >= len(box)
+    box_label = labels[~on_plate & far].mode().values
+    assert bool((labels[~on_plate & far] == box_label).all())
+    assert bool((labels[on_plate & far] != box_label).all())
+    # one body turning about its centre: one part
+    spin = torch.tensor([0.3, 4.0, 1.1], dtype=DT)
+    ball = torch.nn.functional.normalize(torch.randn(2000, 3, generator=gen, dtype=DT), dim=1) * 0.2
+    u = torch.tensor([0.65, 0.0, 0.1], dtype=DT) + torch.cross(spin.expand_as(ball), ball, dim=-1)
+    u = u + 0.02 * torch.randn(u.shape, generator=gen, dtype=DT)
+    assert bool((split_rigid(ball, u, floor=0.005) == 1).all())

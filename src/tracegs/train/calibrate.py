@@ -41,6 +41,7 @@ from ..physics.free_body import (
     isolation,
     move,
     rigid_components,
+    split_rigid,
 )
 from ..physics.integrate import particle_velocity
 from ..physics.so3 import quat_normalize
@@ -321,9 +322,8 @@ def choose_free_bodies(model, data: Path, downscale: int, t_max: float, extent: 
     x0, before = path_t0[1][0], path_t0[1][-1]
     moved = (x0 - before).norm(dim=-1) > 0.0025 * extent
     params = model.query_dynamics(x0, t0)
-    parts = rigid_components(
-        x0, moved, particle_velocity(x0, params.velocity, params.angular_velocity), 0.0025 * extent
-    ).to(dev)
+    u = particle_velocity(x0, params.velocity, params.angular_velocity)
+    parts = rigid_components(x0, moved, u, 0.0025 * extent).to(dev)
     backtest = path_t1 = before_t1 = None
     chosen, report = [], []
 
@@ -341,24 +341,29 @@ def choose_free_bodies(model, data: Path, downscale: int, t_max: float, extent: 
         return refine_free_body(body, rows, start, t, frames, steps, views)
 
     for label in range(1, int(parts.max()) + 1):
-        rows = parts == label
-        apart = isolation(x0, rows, ~moved)  # inf when nothing is still; JSON (summary.json) says null
-        entry = {"gaussians": int(rows.sum()), "isolation": apart if math.isfinite(apart) else None}
-        entry["free_body"] = False
-        report.append(entry)
+        group = parts == label
+        apart = isolation(x0, group, ~moved)  # inf when nothing is still; JSON (summary.json) says null
+        entry = {"gaussians": int(group.sum()), "isolation": apart if math.isfinite(apart) else None}
         if apart <= dyn.free_body_isolation:
+            report.append({**entry, "free_body": False})
             continue  # it touches something still: a hinge or a rail, which the learned physics holds
         if backtest is None:
             backtest = _Backtest(model, data, downscale, t1, t_max)
             path_t1 = window_means(model, t1, dyn.free_body_window)
             before_t1 = fit_views(t1, t1)
-        body = fit_free_body(model, rows, t1, path_t1)
-        body = refine(body, rows, backtest.start, t1, before_t1)
-        entry["mse_learned"] = backtest.error(rows, None)
-        entry["mse_free_body"] = backtest.error(rows, body)
-        entry["free_body"] = entry["mse_free_body"] < dyn.free_body_tolerance * entry["mse_learned"]
-        if entry["free_body"]:
-            chosen.append(rows)
+        # a body in flight with parts on hinges: a free body for each part
+        split = split_rigid(x0[group], u[group], 0.0025 * extent).to(dev)
+        for part in range(1, int(split.max()) + 1):
+            rows = group.clone()
+            rows[group] = split == part
+            body = refine(fit_free_body(model, rows, t1, path_t1), rows, backtest.start, t1, before_t1)
+            result = {**entry, "gaussians": int(rows.sum()), "group": label}
+            result["mse_learned"] = backtest.error(rows, None)
+            result["mse_free_body"] = backtest.error(rows, body)
+            result["free_body"] = result["mse_free_body"] < dyn.free_body_tolerance * result["mse_learned"]
+            report.append(result)
+            if result["free_body"]:
+                chosen.append(rows)
     if not chosen:
         return none, report
     labels = none["labels"].clone()
