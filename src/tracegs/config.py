@@ -145,7 +145,8 @@ class DynamicStageConfig:
     that is free the future of a free body, a pivot on a parabola and a constant spin
     (``physics/free_body.py``): a part is free when it touches nothing still (``free_body_isolation``)
     and its free body, started ``free_body_backtest`` frames before the handover, predicts the training
-    images up to t_max with less than ``free_body_tolerance`` times the learned physics' error. The
+    images up to t_max with less than ``free_body_tolerance`` times the learned physics' error (a group
+    in flight whose parts turn on hinges is split into its rigid parts first, each tested alone). The
     learned physics cannot hold a spinning body that falls (docs/PHYSICS.md, "A free body per part").
     Not in the paper; off = the paper's extrapolation. Render time only."""
     free_body_window: int = 12

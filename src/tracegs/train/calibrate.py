@@ -15,9 +15,10 @@ pseudo-extrapolation on the training data: start the physics ``horizon`` frames 
 training time, integrate to the last few training times, and score the training cameras there.
 
 ``choose_free_bodies`` (``dynamic.free_bodies``): the rigid groups of moving Gaussians whose future
-a free body (``physics/free_body.py``) takes over: those that touch nothing still, and whose free
-body, in a backtest from before the handover, predicts the last training images about as well as the
-learned physics or better.
+a free body (``physics/free_body.py``) takes over: those that touch nothing still (split into their
+rigid parts where they have parts on hinges), and whose free body, fitted to the training images
+(``refine_free_body``), predicts the last training images in a backtest from before the handover
+about as well as the learned physics or better.
 """
 
 from __future__ import annotations
