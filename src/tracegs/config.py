@@ -156,10 +156,10 @@ class DynamicStageConfig:
     """Frames before the handover from which ``free_bodies`` backtests both models on the training
     images (up to t_max)."""
     free_body_refine_steps: int = 150
-    """Adam steps that fit each free body (pivot, velocity, acceleration, spin, and where it is at the
-    handover) to the training images of its window, from the parabola fitted to f_defo's path and f_trd's spin
-    (``train/calibrate.py``, ``refine_free_body``); the backtest's body to the images before its start
-    only. 0 = off."""
+    """Adam steps that fit each free body (velocity, acceleration, spin, and where it is at the
+    handover; the pivot stays at its centre of mass) to the training images of its window, from the
+    parabola fitted to f_defo's path and f_trd's spin (``train/calibrate.py``, ``refine_free_body``);
+    the backtest's body to the images before its start only. 0 = off."""
     free_body_refine_views: int = 8
     """Random training views rendered at each of those steps."""
     free_body_isolation: float = 20.0

@@ -168,6 +168,14 @@ def rigid_components(
     return labels
 
 
+def _rigid_residual(x: torch.Tensor, u: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+    """[M] how far each velocity ``u`` [M, 3] of the points ``x`` [M, 3] is from the rigid motion fitted
+    to the points ``rows`` (``fit_rigid_velocity`` about their mean)."""
+    pivot = x[rows].mean(0)
+    v, w = fit_rigid_velocity(x[rows], u[rows], pivot)
+    return (u - v - torch.cross(w.expand_as(x), x - pivot, dim=-1)).norm(dim=1)
+
+
 def _robust_rigid_fit(
     x: torch.Tensor, u: torch.Tensor, floor: float, rounds: int = 8
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -177,9 +185,7 @@ def _robust_rigid_fit(
     inliers = torch.ones(len(x), dtype=torch.bool)
     residual = torch.zeros(len(x), dtype=torch.float64)
     for _ in range(rounds):
-        pivot = x[inliers].mean(0)
-        v, w = fit_rigid_velocity(x[inliers], u[inliers], pivot)
-        residual = (u - v - torch.cross(w.expand_as(x), x - pivot, dim=-1)).norm(dim=1)
+        residual = _rigid_residual(x, u, inliers)
         keep = residual < max(3 * float(residual[inliers].median()), floor)
         if torch.equal(keep, inliers) or int(keep.sum()) < 3:
             break
@@ -241,12 +247,7 @@ def split_rigid(
     if parts == 0:
         return labels + 1
     # each point to the part, among its own and its neighbours', whose rigid motion fits it best
-    residual = torch.empty(len(x), parts, dtype=torch.float64)
-    for part in range(1, parts + 1):
-        rows = labels == part
-        pivot = x[rows].mean(0)
-        v, w = fit_rigid_velocity(x[rows], u[rows], pivot)
-        residual[:, part - 1] = (u - v - torch.cross(w.expand_as(x), x - pivot, dim=-1)).norm(dim=1)
+    residual = torch.stack([_rigid_residual(x, u, labels == part) for part in range(1, parts + 1)], 1)
     around = torch.cat([labels[:, None], labels[torch.as_tensor(nn[:, 1:])]], 1)  # [M, k + 1]
     allowed = torch.zeros(len(x), parts + 1, dtype=torch.bool).scatter_(1, around, True)[:, 1:]
     if not bool(allowed.any(1).all()):  # a point amid unlabelled ones: its nearest labelled point's part

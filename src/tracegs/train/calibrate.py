@@ -183,12 +183,15 @@ class _TrainingViews:
             for t, frames in by_time.items()
             if t_from + 1e-9 < t <= t_to + 1e-9
         }
-        self.deformed = {t: model.deform(t) for t in self.views}
+        self.deformed = {}
+        for t in self.views:
+            state = model.deform(t)
+            self.deformed[t] = {**state, "quats": quat_normalize(state["quats"])}
 
     def with_part(self, t: float, rows: torch.Tensor, means: torch.Tensor, quats: torch.Tensor) -> dict:
         """f_defo's state at ``t`` with the Gaussians ``rows`` at ``means``, ``quats``."""
-        state = dict(self.deformed[t])
-        all_means, all_quats = state["means"].clone(), quat_normalize(state["quats"]).clone()
+        state = self.deformed[t]
+        all_means, all_quats = state["means"].clone(), state["quats"].clone()
         all_means[rows], all_quats[rows] = means, quats
         return {**state, "means": all_means, "quats": all_quats}
 
