@@ -41,6 +41,7 @@ from ..physics.free_body import (
     fit_rigid_velocity,
     isolation,
     move,
+    pivot_path,
     rigid_components,
     split_rigid,
 )
@@ -234,13 +235,14 @@ def window_means(model, t0: float, window: int) -> tuple[torch.Tensor, list[torc
 def fit_free_body(
     model, rows: torch.Tensor, t0: float, path: tuple[torch.Tensor, list[torch.Tensor]]
 ) -> FreeBody:
-    """The free body of the Gaussians ``rows`` at ``t0``: its pivot's parabola fitted to their centre of
-    mass (``centre_of_mass``) under f_defo over the window ``path`` (``window_means``), its spin the
-    rigid motion that best fits f_trd's particle velocities over them at ``t0``."""
+    """The free body of the Gaussians ``rows`` at ``t0``: its pivot, their centre of mass at ``t0``
+    (``centre_of_mass``); the pivot's parabola fitted to its path under f_defo's rigid motion of them
+    over the window ``path`` (``window_means``; ``pivot_path``); its spin the rigid motion that best
+    fits f_trd's particle velocities over them at ``t0``."""
     times, past = path
-    centroids = torch.stack([centre_of_mass(means[rows]) for means in past])
-    c0, v, a = fit_parabola(times, centroids.cpu(), t0)
     x = past[0][rows]
+    c0 = centre_of_mass(x)
+    _, v, a = fit_parabola(times, pivot_path(c0, x, [means[rows] for means in past]), t0)
     params = model.query_dynamics(x, t0)
     _, w = fit_rigid_velocity(x, particle_velocity(x, params.velocity, params.angular_velocity), c0)
     return FreeBody(c0, v, a, w)
