@@ -107,7 +107,7 @@ def pivot_path(pivot: torch.Tensor, at_t0: torch.Tensor, past: list[torch.Tensor
     made by its outermost Gaussians, and a few of them that f_defo moves a little off the body move it.
     On `satellite`'s validation run the hulls' path gave a wing's centre an acceleration 0.9 off in a
     direction the truth has none; the rigid fits' path gives the whole body's motion (docs/PHYSICS.md,
-    "The free body fitted to the images")."""
+    "The parts' paths from rigid fits")."""
     p = pivot.double().cpu()
     path = []
     for points in past:
