@@ -88,13 +88,14 @@ def fit_parabola(times: torch.Tensor, points: torch.Tensor, t0: float) -> tuple[
 
 def fit_rigid_transform(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """(R [3, 3], T [3]) of the rotation and translation that best map the points ``a`` [N, 3] onto
-    ``b`` [N, 3], ``b ~ R a + T`` (least squares, Kabsch; float64, a proper rotation)."""
+    ``b`` [N, 3], ``b ~ R a + T`` (least squares, Kabsch via scipy's ``Rotation.align_vectors``;
+    float64, a proper rotation)."""
+    from scipy.spatial.transform import Rotation
+
     a, b = a.detach().double().cpu(), b.detach().double().cpu()
     ca, cb = a.mean(0), b.mean(0)
-    u, _, vt = torch.linalg.svd((a - ca).T @ (b - cb))
-    d = torch.ones(3, dtype=torch.float64)
-    d[2] = torch.sign(torch.linalg.det(vt.T @ u.T))
-    rotation = vt.T @ torch.diag(d) @ u.T
+    fitted, _ = Rotation.align_vectors((b - cb).numpy(), (a - ca).numpy())
+    rotation = torch.as_tensor(fitted.as_matrix(), dtype=torch.float64)
     return rotation, cb - rotation @ ca
 
 
