@@ -1,5 +1,5 @@
 """The frozen-appearance ceiling of synthetic scenes: the best extrapolation PSNR that a model moving
-Gaussians of constant colour can reach there (``tracegs.data.synth.ceiling``; docs/BENCHMARKS.md).
+Gaussians of constant colour can reach there (``tracegs.data.synth.ceiling``; docs/RESULTS.md).
 
 Usage: .venv/bin/python benchmarks/appearance_ceiling.py SCENE_FOLDER [...] [--json F] [--mean-frames N]
 (SCENE_FOLDER: written by ``tracegs synth``, e.g. runs/bench/scenes/fan_128.)
@@ -8,17 +8,16 @@ Usage: .venv/bin/python benchmarks/appearance_ceiling.py SCENE_FOLDER [...] [--j
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-from tracegs.bench_report import machine_description
 from tracegs.data.synth.ceiling import appearance_ceiling
+from tracegs.results import machine_description, make_record, write_record
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("folders", nargs="+", type=Path)
-    parser.add_argument("--handover-frames", type=float, default=4.0, help="as dynamic.handover_frames")
+    parser.add_argument("--handover-frames", type=float, default=4.0, help="as extrapolation.handover_frames")
     parser.add_argument(
         "--mean-frames", type=int, default=12, help="training frames averaged by the mean bound"
     )
@@ -40,7 +39,23 @@ def main() -> None:
                 f"{r['scene']} ({mode}): {b['mae_psnr']:.2f} dB MAE-PSNR over {b['frames_scored']} frames; {parts}"
             )
     if args.json:
-        args.json.write_text(json.dumps(results, indent=2))
+        rows = []
+        for r in results:
+            parts = r["handover"]["per_part"]
+            lowest = min(parts, key=lambda k: parts[k]["psnr"] or float("inf"))
+            rows.append(
+                {
+                    "scene": r["scene"],
+                    "ceiling_handover": r["handover"]["mae_psnr"],
+                    "ceiling_mean": r["mean"]["mae_psnr"],
+                    "lowest_part": lowest,
+                    "lowest_part_psnr": parts[lowest]["psnr"],
+                }
+            )
+        folders = " ".join(str(f) for f in args.folders)
+        command = f".venv/bin/python benchmarks/appearance_ceiling.py {folders} --json {args.json}"
+        title = "Appearance ceiling: the best future PSNR of constant-colour Gaussians on exact motion"
+        write_record(args.json, make_record("appearance-ceiling", rows, command, title=title))
 
 
 if __name__ == "__main__":

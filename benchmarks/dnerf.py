@@ -36,6 +36,7 @@ def main() -> None:
         help="train on this fraction of the training span and score its later frames (choosing settings)",
     )
     ap.add_argument("--out", type=Path, default=Path("runs/bench"))
+    ap.add_argument("--json", type=Path, help="write the results record here (e.g. docs/results/dnerf.json)")
     args = ap.parse_args()
     scenes = tuple(str(args.root / s) for s in args.scenes)
     missing = [s for s in scenes if not Path(s, "transforms_train.json").is_file()]
@@ -63,7 +64,7 @@ def main() -> None:
         overrides,
         command=command,
         validation=args.validation,
-        methods_table="dnerf",
+        json_path=args.json,
     )
     future = "val_future_psnr" if args.validation is not None else "extrap_psnr"
     for r in rows:

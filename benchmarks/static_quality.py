@@ -14,12 +14,14 @@ from pathlib import Path
 
 import torch
 
-from tracegs.bench_report import machine_description, markdown_table, update_section
 from tracegs.config import make_config
-from tracegs.data.blender import load_image, load_scene
+from tracegs.data.scene import load_image, load_scene
 from tracegs.data.synth import synthesize
 from tracegs.eval.metrics import mae_psnr, mse, ssim
-from tracegs.train.trainer import Trainer, load_run
+from tracegs.extrapolate import gaussians_at
+from tracegs.results import make_record, write_record
+from tracegs.run import load_run
+from tracegs.train.trainer import Trainer
 
 
 def main() -> None:
@@ -29,6 +31,9 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=3000)
     ap.add_argument("--views", type=int, default=40)
     ap.add_argument("--out", type=Path, default=Path("runs/bench"))
+    ap.add_argument(
+        "--json", type=Path, help="write the results record here (docs/results/static-quality.json)"
+    )
     args = ap.parse_args()
     data = args.out / "scenes" / f"{args.scene}_128_static_v{args.views}"
     if not (data / "transforms_val.json").is_file():
@@ -38,7 +43,8 @@ def main() -> None:
     run = args.out / "runs" / f"{args.scene}_static_{args.preset}"
     cfg = make_config(args.preset, data=data, run=run, method="static", static_iterations=args.iterations)
     summary = Trainer(cfg, progress=False).train()
-    model, cfg, meta = load_run(run, "cpu")
+    loaded = load_run(run, "cpu")
+    model, cfg = loaded.model, loaded.config
     scene = load_scene(data, "val")
     background = torch.tensor(scene.background)
     mses, ssims = [], []
@@ -46,7 +52,7 @@ def main() -> None:
         if f.time != 0.0:
             continue
         pred = model.render(
-            model.state_at(0.0, meta["t_max"]), f.camera, cfg.sh_degree, background
+            gaussians_at(model, loaded.state, 0.0), f.camera, cfg.sh_degree, background
         ).image.clamp(0, 1)
         gt = load_image(f, scene.background)
         mses.append(float(mse(pred, gt)))
@@ -62,13 +68,13 @@ def main() -> None:
         "train_s": summary["train_seconds"],
     }
     print(json.dumps(row, indent=2))
-    body = (
-        "## Static reconstruction (stage 1) on a generated scene, held-out views at t = 0\n\n"
-        f"`.venv/bin/python benchmarks/static_quality.py --scene {args.scene} --views {args.views} "
-        f"--preset {args.preset} --iterations {args.iterations}` "
-        f"on {machine_description()}.\n\n" + markdown_table([row], list(row))
-    )
-    update_section("static-quality", body)
+    if args.json is not None:
+        command = (
+            f".venv/bin/python benchmarks/static_quality.py --scene {args.scene} --views {args.views} "
+            f"--preset {args.preset} --iterations {args.iterations} --json {args.json}"
+        )
+        title = "Static reconstruction (stage 1) on a generated scene, held-out views at t = 0"
+        write_record(args.json, make_record("static-quality", [row], command, title=title))
 
 
 if __name__ == "__main__":

@@ -10,11 +10,14 @@ import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import tyro
 
-COMMANDS = ("demo", "synth", "train", "render", "eval", "metrics", "bench")
+if TYPE_CHECKING:
+    from .config import TrainConfig
+
+COMMANDS = ("demo", "synth", "train", "calibrate", "render", "eval", "metrics", "bench", "results")
 
 
 @dataclass
@@ -49,6 +52,23 @@ class Synth:
     """Irradiance of the sun (directional light, hard shadows); 0 = no shading and no shadows."""
     ambient: float = 0.4
     """Radiance of a surface of albedo 1 lit by the ambient term alone."""
+
+
+@dataclass
+class Calibrate:
+    """Choose a trained run's post-training extrapolation state again on its training images (the
+    handover's still Gaussians, the free bodies) and store it: for a run written by an older tracegs,
+    or after changing an extrapolation setting (e.g. ``--free-bodies False``)."""
+
+    run: Path
+    """Run folder written by `tracegs train`."""
+    handover_frames: float | None = None
+    """New ``extrapolation.handover_frames`` (default: the run's)."""
+    free_bodies: bool | None = None
+    """New ``extrapolation.free_bodies`` (default: the run's)."""
+    data: Path | None = None
+    """Scene folder (default: the one the run was trained on)."""
+    device: str = "auto"
 
 
 @dataclass
@@ -104,11 +124,12 @@ class Metrics:
 @dataclass
 class Bench:
     """Benchmarks: `raster` (rasteriser backends), `fields` (MLP cost), `methods` (TRACE, TRACE_4dgs, DefGS),
-    `ablations` (the paper's Table 4); tables go to docs/BENCHMARKS.md."""
+    `ablations` (the paper's Table 4). `--json docs/results/NAME.json` keeps the record for
+    docs/RESULTS.md (`tracegs results`)."""
 
     what: tyro.conf.Positional[Literal["raster", "fields", "methods", "ablations"]]
     json: Path | None = None
-    """Write the records as JSON."""
+    """Write the results record here (e.g. docs/results/methods.json)."""
     out: Path = Path("runs/bench")
     """Working folder for scenes and runs (train benchmark)."""
     preset: str = "cpu-fast"
@@ -120,7 +141,7 @@ class Bench:
     """Override the preset's dynamic iterations (a shorter schedule for large tables)."""
     variants: tuple[str, ...] = ()
     """Subset of rows to run (e.g. TRACE DefGS, or dt=1 "no f_defo"); empty = all of the paper's.
-    The ablations also take our options beside the paper's switches (e.g. "skip static")."""
+    The ablations also take our options beside the paper's switches (e.g. "no skip static")."""
     report_only: bool = False
     """Train nothing: tabulate the finished runs of these scenes and variants, skip the others."""
     device: str = "auto"
@@ -128,6 +149,23 @@ class Bench:
     validation: float | None = None
     """Choose settings without the test splits: train on this fraction of the training span (e.g. 0.8)
     and score the training cameras' later frames (methods and ablations)."""
+
+
+@dataclass
+class Results:
+    """Make docs/RESULTS.md from the results records in docs/results/ (one table per benchmark)."""
+
+    json: Path = Path("docs/results")
+    """Folder of the results records (``*.json``)."""
+    out: Path = Path("docs/RESULTS.md")
+    """The page to write."""
+
+
+@dataclass
+class _PresetChoice:
+    """The first pass of ``tracegs train``: which preset gives the defaults of the full parse."""
+
+    preset: Literal["paper", "cpu-fast", "tiny"] = "cpu-fast"
 
 
 def _dump(result, path: Path | None, console: str | None = None) -> None:
@@ -140,20 +178,25 @@ def _dump(result, path: Path | None, console: str | None = None) -> None:
     print(text if console is None else console)
 
 
+def train_config(argv: list[str]) -> TrainConfig:
+    """The config of `tracegs train --data D --run R [--preset P] [--section.field V ...]`: tyro reads
+    ``--preset`` first (``return_unknown_args``), then every flag with that preset's values as the
+    defaults (tyro's pattern for overridable configs); ``--help`` shows the preset's values."""
+    from .config import PRESETS
+
+    choice, _ = tyro.cli(_PresetChoice, args=argv, return_unknown_args=True, add_help=False)
+    cfg = tyro.cli(
+        type(PRESETS[choice.preset]()), default=PRESETS[choice.preset](), args=argv, prog="tracegs train"
+    )
+    cfg.preset = choice.preset
+    return cfg
+
+
 def run_train(argv: list[str]) -> dict:
-    """`tracegs train --data D --run R [--preset P] [any config field]`; the preset sets the defaults."""
-    from .config import TrainConfig, make_config
+    """`tracegs train`: train the run that ``train_config(argv)`` describes."""
     from .train.trainer import Trainer
 
-    preset = "cpu-fast"
-    for i, arg in enumerate(argv):
-        if arg == "--preset" and i + 1 < len(argv):
-            preset = argv[i + 1]
-        elif arg.startswith("--preset="):
-            preset = arg.split("=", 1)[1]
-    cfg = tyro.cli(TrainConfig, default=make_config(preset), args=argv, prog="tracegs train")
-    cfg.preset = preset
-    return Trainer(cfg).train()
+    return Trainer(train_config(argv)).train()
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -176,6 +219,22 @@ def main(argv: list[str] | None = None) -> None:
 
         a = tyro.cli(Synth, args=rest, prog=prog)
         synthesize(a.scene, a.out, a.resolution, a.views, a.frames, a.seed, sun=a.sun, ambient=a.ambient)
+    elif command == "calibrate":
+        from .run import calibrate_run
+
+        a = tyro.cli(Calibrate, args=rest, prog=prog)
+        settings = {
+            f"extrapolation.{k}": v
+            for k, v in (("handover_frames", a.handover_frames), ("free_bodies", a.free_bodies))
+            if v is not None
+        }
+        state = calibrate_run(a.run, a.device, settings, a.data)
+        print(json.dumps({"freeze_threshold": state.freeze_threshold, **state.report}, indent=2))
+    elif command == "results":
+        from .results import write_results_page
+
+        a = tyro.cli(Results, args=rest, prog=prog)
+        print(write_results_page(a.json, a.out))
     elif command == "render":
         from .export.render import render_command
 
@@ -197,40 +256,40 @@ def main(argv: list[str] | None = None) -> None:
         a = tyro.cli(Metrics, args=rest, prog=prog)
         _dump(compare_images(a.image_a, a.image_b), a.json)
     elif command == "bench":
-        a = tyro.cli(Bench, args=rest, prog=prog)
-        if a.what == "raster":
-            from .render.bench import run_raster_bench
+        _bench(tyro.cli(Bench, args=rest, prog=prog))
 
-            records = run_raster_bench(json_path=a.json, device=a.device)
-        else:
-            from .bench import ABLATIONS, METHODS, OPTIONS, run_field_bench, run_variant_table
 
-            if a.what == "fields":
-                records = run_field_bench()
-            else:
-                table = METHODS if a.what == "methods" else ABLATIONS
-                known = table if a.what == "methods" else ABLATIONS | OPTIONS
-                unknown = set(a.variants) - set(known)
-                if unknown:
-                    raise SystemExit(f"unknown variants {sorted(unknown)}; choose from {list(known)}")
-                variants = {k: v for k, v in known.items() if k in a.variants} if a.variants else table
-                overrides = {} if a.device == "auto" else {"device": a.device}
-                if a.dynamic_iterations is not None:
-                    overrides["dynamic_iterations"] = a.dynamic_iterations
-                records = run_variant_table(
-                    a.what,
-                    variants,
-                    a.out,
-                    a.scenes,
-                    a.preset,
-                    a.resolution,
-                    overrides,
-                    train=not a.report_only,
-                    validation=a.validation,
-                )
-            if a.json is not None:
-                _dump(records, a.json)
-        print(json.dumps(records, indent=2)[:4000])
+def _bench(a: Bench) -> None:
+    """`tracegs bench WHAT`: one benchmark; its record goes to ``--json`` when given."""
+    from .bench import ABLATIONS, METHODS, OPTIONS, run_field_bench, run_raster_bench, run_variant_table
+
+    if a.what == "raster":
+        records = run_raster_bench(json_path=a.json, device=a.device)
+    elif a.what == "fields":
+        records = run_field_bench(json_path=a.json)
+    else:
+        table = METHODS if a.what == "methods" else ABLATIONS
+        known = table if a.what == "methods" else ABLATIONS | OPTIONS
+        unknown = set(a.variants) - set(known)
+        if unknown:
+            raise SystemExit(f"unknown variants {sorted(unknown)}; choose from {list(known)}")
+        variants = {k: v for k, v in known.items() if k in a.variants} if a.variants else table
+        overrides = {} if a.device == "auto" else {"device": a.device}
+        if a.dynamic_iterations is not None:
+            overrides["dynamic_iterations"] = a.dynamic_iterations
+        records = run_variant_table(
+            a.what,
+            variants,
+            a.out,
+            a.scenes,
+            a.preset,
+            a.resolution,
+            overrides,
+            train=not a.report_only,
+            validation=a.validation,
+            json_path=a.json,
+        )
+    print(json.dumps(records, indent=2)[:4000])
 
 
 if __name__ == "__main__":

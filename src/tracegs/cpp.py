@@ -115,6 +115,7 @@ class NativeExtension:
     def build(self, openmp: bool):
         from torch.utils.cpp_extension import load
 
+        _ninja_on_path()
         cflags = ["-O3", "-ffp-contract=off"]
         # Same float results in forward and backward loops (the rasteriser decides alpha thresholds in
         # both independently) need identical rounding: no FMA contraction, no fast-math.
@@ -159,3 +160,16 @@ class NativeExtension:
                 stacklevel=3,
             )
         return self.module
+
+
+def _ninja_on_path() -> None:
+    """torch builds extensions with the ``ninja`` binary, which the ninja package installs into the
+    venv's ``bin/``: not on PATH when the venv is not activated (``.venv/bin/tracegs``)."""
+    try:
+        import ninja
+    except ImportError:
+        return
+    bin_dir = str(getattr(ninja, "BIN_DIR", ""))
+    path = os.environ.get("PATH", "")
+    if bin_dir and bin_dir not in path.split(os.pathsep):
+        os.environ["PATH"] = bin_dir + os.pathsep + path

@@ -83,3 +83,8 @@ def look_at_viewmat(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)) -> torch.Te
     viewmat[:3, :3] = R
     viewmat[:3, 3] = -R @ eye
     return viewmat
+
+
+def scene_extent_from_cameras(centers: torch.Tensor) -> float:
+    """3DGS's ``spatial_lr_scale``: 1.1 x the radius of the camera centres around their mean."""
+    return 1.1 * float((centers - centers.mean(0)).norm(dim=-1).max().clamp_min(1e-6))

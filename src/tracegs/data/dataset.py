@@ -10,8 +10,9 @@ from pathlib import Path
 
 import torch
 
-from .blender import SceneSplit, load_rgba, load_scene
 from .cameras import Camera
+from .frames import SceneSplit, load_rgba
+from .scene import load_scene
 
 
 @dataclass

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .blender import DatasetError, Frame, SceneSplit, load_json
 from .cameras import Camera
+from .frames import DatasetError, Frame, SceneSplit, load_json
 
 KEYS = ("w", "h", "k", "w2c", "fn", "cam_id")
 

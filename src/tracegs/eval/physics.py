@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..extrapolate import gaussians_at, handover_time
 from ..physics.free_body import FreeBody
 
 
@@ -51,29 +52,31 @@ def _transform(T: np.ndarray, x: torch.Tensor) -> torch.Tensor:
     return x @ T[:3, :3].T + T[:3, 3]
 
 
-def _parts_at(model, t: float, t_max: float, gt, radius: float) -> tuple[torch.Tensor, torch.Tensor]:
+def _parts_at(model, state, t: float, gt, radius: float) -> tuple[torch.Tensor, torch.Tensor]:
     """``(means [N, 3], part id [N])`` of the Gaussians at time ``t`` (0: on no part)."""
     points, part_ids, transforms = gt
     T = transforms(t)  # [P, 4, 4], rest -> world at t
     parts = sorted(int(p) for p in np.unique(part_ids))
     world = np.concatenate([points[part_ids == p] @ T[p - 1][:3, :3].T + T[p - 1][:3, 3] for p in parts])
     ids = np.concatenate([part_ids[part_ids == p] for p in parts])
-    means = model.state_at(t, t_max)["means"]
+    means = gaussians_at(model, state, t)["means"]
     return means, assign_parts(means, world, ids, radius)
 
 
 @torch.no_grad()
-def physics_errors(model, t_max: float, data: Path, times: list[float], radius: float = 0.03) -> dict:
-    """Per-part trajectory error over ``times`` (> t_max) and angular-velocity error at t_max."""
+def physics_errors(model, state, data: Path, times: list[float], radius: float = 0.03) -> dict:
+    """Per-part trajectory error over ``times`` (> t_max) and angular-velocity error at t_max, for a
+    model and its post-training ``state`` (``extrapolate.ExtrapolationState``)."""
+    t_max = state.t_max
     gt = _gt(data)
     part_ids, transforms = gt[1], gt[2]
     parts = sorted(int(p) for p in np.unique(part_ids))
     T_start = transforms(t_max)
-    x_start, owner = _parts_at(model, t_max, t_max, gt, radius)
+    x_start, owner = _parts_at(model, state, t_max, gt, radius)
     result = {"radius": radius, "parts": {}}
     per_time = {p: [] for p in parts}
     for t in times:
-        x_pred = model.state_at(t, t_max)["means"]
+        x_pred = gaussians_at(model, state, t)["means"]
         T_t = transforms(t)
         for p in parts:
             sel = owner == p
@@ -83,7 +86,7 @@ def physics_errors(model, t_max: float, data: Path, times: list[float], radius: 
             rel = T_t[p - 1] @ np.linalg.inv(T_start[p - 1])
             err = (x_pred[sel] - _transform(rel, x_start[sel])).norm(dim=-1).mean()
             per_time[p].append({"t": t, "error": float(err)})
-    omega = _spin_at(model, x_start, t_max)
+    omega = _spin_at(model, state, x_start, t_max)
     motions = _motions(data)
     for p in parts:
         sel = owner == p
@@ -94,17 +97,18 @@ def physics_errors(model, t_max: float, data: Path, times: list[float], radius: 
             entry.update(_compare_omega(omega[sel].median(dim=0).values.cpu().numpy(), motions[p - 1], t_max))
         result["parts"][str(p)] = entry
     if omega is not None:
-        result["omega_over_span"] = _omega_over_span(model, t_max, gt, motions, radius)
+        result["omega_over_span"] = _omega_over_span(model, state, gt, motions, radius)
     return result
 
 
-def _omega_over_span(model, t_max: float, gt, motions: list[dict], radius: float) -> list[dict]:
+def _omega_over_span(model, state, gt, motions: list[dict], radius: float) -> list[dict]:
     """Relative error of each rotating part's median learned |w| at query times across the training
     span: fractions of t_max and the handover time."""
-    times = sorted({t_max * f for f in (0.25, 0.5, 0.75, 1.0)} | {model.handover_time(t_max)})
+    t_max = state.t_max
+    times = sorted({t_max * f for f in (0.25, 0.5, 0.75, 1.0)} | {handover_time(model, t_max)})
     rows = []
     for t in times:
-        means, owner = _parts_at(model, t, t_max, gt, radius)
+        means, owner = _parts_at(model, state, t, gt, radius)
         omega = _learned_angular_velocity(model, means, t)
         row = {"t": t, "parts": {}}
         for p, motion in enumerate(motions, start=1):
@@ -122,15 +126,15 @@ def _omega_over_span(model, t_max: float, gt, motions: list[dict], radius: float
     return rows
 
 
-def _spin_at(model, means: torch.Tensor, t: float) -> torch.Tensor | None:
+def _spin_at(model, state, means: torch.Tensor, t: float) -> torch.Tensor | None:
     """[N, 3] the angular velocity the future turns each Gaussian at, from ``t`` (after the handover):
-    f_trd's, or its free body's where one moves it (``dynamic.free_bodies``)."""
+    f_trd's, or its free body's where one moves it (``extrapolation.free_bodies``)."""
     omega = _learned_angular_velocity(model, means, t)
-    bodies = getattr(model, "free_bodies", None)
+    bodies = state.free_bodies
     if (
         omega is None
         or bodies is None
-        or not model.cfg.dynamic.free_bodies
+        or not model.cfg.extrapolation.free_bodies
         or len(omega) != len(bodies["labels"])
     ):
         return omega

@@ -17,8 +17,9 @@ from pathlib import Path
 import torch
 
 from ..config import apply_overrides
-from ..data.blender import Frame, available_splits, load_image, load_scene
-from ..train.trainer import load_run
+from ..data.scene import Frame, available_splits, load_image, load_scene
+from ..extrapolate import gaussians_at
+from ..run import load_run
 from ..utils import atomic_write_image
 from .metrics import mae_psnr, mse, psnr, ssim
 
@@ -93,10 +94,11 @@ def evaluate_run(
 ) -> dict:
     """Render both splits of a trained run and score them (schema in docs/EVALUATION.md); with
     ``future_end``, the extrapolation split is the validation future (``split_frames``).
-    ``render_settings``: config fields that only change rendering, set by name as in
-    ``config.apply_overrides`` (e.g. ``{"dynamic__handover_frames": 2}``)."""
+    ``render_settings``: ``extrapolation`` settings that change rendering without a new calibration,
+    by dotted name as in ``config.apply_overrides`` (e.g. ``{"extrapolation.free_bodies": False}``)."""
     run = Path(run)
-    model, cfg, meta = load_run(run, device)
+    loaded = load_run(run, device)
+    model, cfg, meta, state = loaded.model, loaded.config, loaded.meta, loaded.state
     if render_settings:
         model.cfg = cfg = apply_overrides(cfg, render_settings)
     data = Path(data or cfg.data)
@@ -118,10 +120,10 @@ def evaluate_run(
             by_time[f.time].append((cameras, f))
         records = []
         for t in sorted(by_time):
-            state = model.state_at(t, meta["t_max"])
+            gaussians = gaussians_at(model, state, t)
             for cameras, f in by_time[t]:
                 cam = f.camera.to(dev)
-                pred = model.render(state, cam, cfg.sh_degree, background).image.clamp(0, 1)
+                pred = model.render(gaussians, cam, cfg.sh_degree, background).image.clamp(0, 1)
                 gt = load_image(f, scene.background).to(dev)
                 if half_res:
                     pred, gt = (
@@ -158,7 +160,7 @@ def evaluate_run(
         from .physics import physics_errors
 
         future = [r["t"] for r in result["extrapolation"]["per_time"]]
-        result["physics"] = physics_errors(model, meta["t_max"], data, future)
+        result["physics"] = physics_errors(model, state, data, future)
     result.update(
         method=cfg.method,
         preset=cfg.preset,

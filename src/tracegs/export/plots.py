@@ -49,7 +49,7 @@ def image_strip(
     With ``error_gain`` > 0 each run's row is followed by its error map (:func:`error_image`)."""
     import imageio.v3 as iio
 
-    from ..data.blender import load_image
+    from ..data.scene import load_image
     from ..eval.protocol import split_frames
 
     first = json.loads((Path(next(iter(runs.values()))) / "eval.json").read_text())

@@ -8,17 +8,19 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..data.blender import load_scene
 from ..data.cameras import Camera, look_at_viewmat
-from ..train.trainer import load_run
+from ..data.scene import load_scene
+from ..extrapolate import gaussians_at
+from ..run import load_run
 from ..utils import atomic_write_image
 
 
 @torch.no_grad()
-def render_at(model, t: float, t_max: float, camera: Camera, background: torch.Tensor) -> torch.Tensor:
-    """Image [H, W, 3] of the scene at time ``t`` (extrapolated past ``t_max``) seen by ``camera``."""
-    state = model.state_at(t, t_max)
-    return model.render(state, camera, model.cfg.sh_degree, background).image.clamp(0, 1)
+def render_at(model, state, t: float, camera: Camera, background: torch.Tensor) -> torch.Tensor:
+    """Image [H, W, 3] of the scene at time ``t`` (extrapolated past the run's training span with its
+    post-training ``state``) seen by ``camera``."""
+    gaussians = gaussians_at(model, state, t)
+    return model.render(gaussians, camera, model.cfg.sh_degree, background).image.clamp(0, 1)
 
 
 def orbit_camera(reference: list[Camera], azimuth_deg: float, elevation_deg: float | None = None) -> Camera:
@@ -68,19 +70,20 @@ def render_command(
     data: Path | None = None,
     device: str = "auto",
 ) -> Path:
-    model, cfg, meta = load_run(run, device)
+    loaded = load_run(run, device)
+    model, cfg, state = loaded.model, loaded.config, loaded.state
     data = Path(data or cfg.data)
     background = torch.tensor(load_scene(data, "train").background, device=model.aabb.device)
     if not video:
         cam = pick_camera(data, camera, cfg.downscale).to(model.aabb.device)
-        image = render_at(model, time, meta["t_max"], cam, background)
+        image = render_at(model, state, time, cam, background)
         out = Path(out or Path(run) / "renders" / f"{camera.replace(':', '_')}_t{time:.3f}.png")
         return atomic_write_image(out, image)
     out = Path(out or Path(run) / "renders" / "sweep.mp4")
-    return render_sweep_video(model, meta["t_max"], data, out, t_end, frames, background, cfg.downscale)
+    return render_sweep_video(model, state, data, out, t_end, frames, background, cfg.downscale)
 
 
-def render_sweep_video(model, t_max, data, out: Path, t_end, frames, background, downscale=1) -> Path:
+def render_sweep_video(model, state, data, out: Path, t_end, frames, background, downscale=1) -> Path:
     """A video whose camera orbits once while time runs from 0 to ``t_end``."""
     import imageio.v2 as imageio
 
@@ -89,14 +92,17 @@ def render_sweep_video(model, t_max, data, out: Path, t_end, frames, background,
     for k in range(frames):
         t = t_end * k / max(frames - 1, 1)
         cam = orbit_camera(cams, 360.0 * k / frames).to(model.aabb.device)
-        img = render_at(model, t, t_max, cam, background)
+        img = render_at(model, state, t, cam, background)
         images.append((img.cpu().numpy() * 255 + 0.5).astype(np.uint8))
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.stem}.tmp{out.suffix}")
     try:
-        imageio.mimwrite(
-            tmp, images, fps=24, macro_block_size=1
-        ) if out.suffix == ".mp4" else imageio.mimwrite(tmp, images, duration=1 / 24)
+        if out.suffix == ".mp4":
+            import imageio_ffmpeg  # noqa: F401  (the ffmpeg binary imageio writes MP4 with)
+
+            imageio.mimwrite(tmp, images, fps=24, macro_block_size=1)
+        else:
+            imageio.mimwrite(tmp, images, duration=1 / 24)
     except Exception:  # no ffmpeg: fall back to a GIF next to the requested path
         out = out.with_suffix(".gif")
         tmp = out.with_name(f".{out.stem}.tmp.gif")

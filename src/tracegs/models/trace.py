@@ -1,9 +1,9 @@
 """TRACE: canonical Gaussians + auxiliary deformation field f_defo + translation-rotation dynamics f_trd.
 
-This module says how the Gaussians at a time t are made, for training (Section 3.3: deform to t',
-transport t' -> t with the learned physics, Alg. 1) and for rendering any time, past or future
-(deform up to t_max, then chain integration steps). The DefGS baseline is the same model without
-f_trd; "static" is plain 3DGS.
+This module says how the Gaussians at a time t are made in training (Section 3.3: deform to t',
+transport t' -> t with the learned physics, Alg. 1). What happens after training (the handover, what
+holds still, free bodies; rendering any time) is ``tracegs.extrapolate``. The DefGS baseline is the
+same model without f_trd; "static" is plain 3DGS.
 N: Gaussians.
 """
 
@@ -14,23 +14,10 @@ import contextlib
 import torch
 from torch import nn
 
-from ..physics.free_body import apply_free_bodies
-from ..physics.integrate import (
-    DynamicsParams,
-    acceleration_consistency,
-    integrate,
-    num_substeps,
-    params_in_world,
-    particle_velocity,
-    rotation_consistency,
-    step,
-)
-from ..physics.so3 import quat_normalize
+from ..physics.integrate import acceleration_consistency, integrate, params_in_world
 from ..render import rasterize
 from .deformation import apply_deformation, make_deformation_field
 from .dynamics import DynamicsField
-from .gaussians import nearest_neighbours
-from .surface import SurfacePainters
 
 
 class TraceModel(nn.Module):
@@ -38,14 +25,9 @@ class TraceModel(nn.Module):
 
     def __init__(self, cfg, gaussians: nn.ParameterDict, aabb: torch.Tensor, frame_interval: float):
         super().__init__()
-        if cfg.dynamic.skip_static > 0 and cfg.dynamic.rotation_consistency > 0:
-            raise ValueError(
-                "dynamic.rotation_consistency needs the fields on every Gaussian: "
-                "set --dynamic.skip-static 0 with it"
-            )
         self.cfg = cfg
         self.bf16 = cfg.bf16
-        """bf16 autocast of the fields on CPU; ``load_run`` turns it off on CPUs without AMX."""
+        """bf16 autocast of the fields on CPU; ``run.load_run`` turns it off on CPUs without AMX."""
         self.gaussians = gaussians
         self.register_buffer("aabb", aabb.clone().float())
         self.register_buffer("frame_interval", torch.tensor(float(frame_interval)))
@@ -55,27 +37,13 @@ class TraceModel(nn.Module):
         self._frame_scale: float | None = None  # the scale as a number; None: the world's frame
         self.register_load_state_dict_pre_hook(_default_field_frame)
         self.register_load_state_dict_post_hook(_sync_frame_after_load)
-        uses_deformation = cfg.method == "defgs" or (cfg.method == "trace" and cfg.dynamic.use_deformation)
+        uses_deformation = cfg.method == "defgs" or (cfg.method == "trace" and cfg.stage2.use_deformation)
         self.deformation = make_deformation_field(cfg.deformation, aabb) if uses_deformation else None
         self.dynamics = DynamicsField(cfg.dynamics) if cfg.method == "trace" else None
-        self.freeze_threshold: float | None = None
-        """Freeze threshold chosen after training (``train/calibrate.py``); None: the config's."""
         self.static_mask: torch.Tensor | None = None
-        """[N] bool: Gaussians marked static during training (``dynamic.skip_static``), kept at their
+        """[N] bool: Gaussians marked static during training (``stage2.skip_static``), kept at their
         canonical geometry at every time and skipped by the fields; None: the fields move them all."""
-        self.unseen_mask: torch.Tensor | None = None
-        """[N] bool: Gaussians no training camera sees over the last frames before the handover, held
-        still after it (``dynamic.hold_unseen``; found after training by ``train/calibrate.py``);
-        None: not known, nothing held."""
-        self.free_bodies: dict | None = None
-        """The parts moved as free bodies after the handover (``dynamic.free_bodies``; chosen after
-        training by ``train/calibrate.py``): ``{"t0", "labels" [N] (0: the learned physics), "bodies"
-        [K, 15]}``; None: not chosen."""
         self._moving: torch.Tensor | None = None  # indices of the others
-        # the rotation consistency's [N, k] neighbours, the means parameter they were found for and
-        # their age in calls (a plain dict: a Parameter held as an attribute would join the module)
-        self._neighbours: dict = {"of": None, "index": None, "age": 0}
-        self._surface: tuple | None = None  # (means, moving, painters, settings): the last handover state
 
     # ----- the fields' frame ----------------------------------------------------------------------
     def set_field_frame(self, center: torch.Tensor, scale: float) -> None:
@@ -173,7 +141,7 @@ class TraceModel(nn.Module):
             return params
         return params_in_world(params, self.field_center, self._frame_scale)
 
-    # ----- Gaussians that stand still (``dynamic.skip_static``) ---------------------------------------
+    # ----- Gaussians that stand still (``stage2.skip_static``) ---------------------------------------
     @torch.no_grad()
     def mark_static(self, threshold: float, t_max: float, samples: int = 16) -> float:
         """Mark the Gaussians whose f_defo displacement stays below ``threshold`` (scene units) at
@@ -202,7 +170,7 @@ class TraceModel(nn.Module):
         if self._moving is not None and self.static_mask.shape[0] != self.gaussians["means"].shape[0]:
             raise RuntimeError(
                 "the set of Gaussians changed after they were marked static (densification must have "
-                "stopped before dynamic.skip_static marks them)"
+                "stopped before stage2.skip_static marks them)"
             )
         return self._moving
 
@@ -211,198 +179,49 @@ class TraceModel(nn.Module):
         self, t_prime: float, t: float, physics: bool = True, t_check: float | None = None
     ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
         """Gaussians for rendering frame ``t`` in stage 2 (METHOD.md, Training), and the step's
-        weighted auxiliary losses by name (``acceleration``, ``angular_acceleration`` and ``rotation``,
-        when their weights in ``dynamic`` are set).
+        weighted auxiliary losses by name (``acceleration``, when ``stage2.acceleration_consistency``
+        is set).
 
-        TRACE: deform to t', query f_trd at (x_t', t'), integrate t' -> t, and pass f_defo's gradient
-        straight through to the rendered position (that of f_defo(t') by default, see
-        ``DynamicStageConfig.straight_through_time``). DefGS (or ``physics=False``): f_defo(t) alone.
-        ``t_check``: where the acceleration consistency reads f_trd's velocities again (default ``t``;
-        ``DynamicStageConfig.consistency_frames``).
+        TRACE: deform to t', query f_trd at (x_t', t'), integrate t' -> t, and pass f_defo(t')'s
+        gradient straight through to the rendered position (the physics starts from a detached x_t').
+        DefGS (or ``physics=False``): f_defo(t) alone. ``t_check``: where the acceleration consistency
+        reads f_trd's velocities again (default ``t``; ``Stage2Config.consistency_frames``).
         """
-        dyn = self.cfg.dynamic
+        stage = self.cfg.stage2
         if self.dynamics is None or not physics:
             return self.deform(t), {}
         if self.deformation is None:  # ablation "no f_defo": dynamics carry the canonical Gaussians from 0
             t_prime = 0.0
-        straight_through = dyn.straight_through and self.deformation is not None
-        at_t = straight_through and dyn.straight_through_time == "t"
-        start, *target = self.deform_many([t_prime, t] if at_t else [t_prime])
-        x_start = start["means"].detach() if straight_through and not at_t else start["means"]
-        query_time = t_prime if dyn.physics_derivation else t
+        straight_through = self.deformation is not None
+        start = self.deform(t_prime)
+        x_start = start["means"].detach() if straight_through else start["means"]
+        query_time = t_prime if stage.physics_derivation else t
         rows = self._moving_rows()  # f_trd moves these; the static Gaussians stay where they are
         x_run, q_run = (x_start, start["quats"]) if rows is None else (x_start[rows], start["quats"][rows])
         params = self.query_dynamics(x_run, query_time)
-        means, quats = integrate(x_run, q_run, params, t - t_prime, self.dt_max, method=dyn.integrator)[:2]
+        means, quats = integrate(x_run, q_run, params, t - t_prime, self.dt_max, method=stage.integrator)[:2]
         losses = {}
         share = 1.0 if rows is None else rows.numel() / x_start.shape[0]  # a mean over all Gaussians
-        learns_accelerations = self.cfg.dynamics.order >= 2 and dyn.physics_derivation
+        learns_accelerations = self.cfg.dynamics.order >= 2 and stage.physics_derivation
         # (not when every Gaussian is marked static: a mean over no particles is NaN)
         t_check = t if t_check is None else t_check
-        if dyn.acceleration_consistency > 0 and learns_accelerations and t_check != t_prime and len(x_run):
+        if stage.acceleration_consistency > 0 and learns_accelerations and t_check != t_prime and len(x_run):
             with torch.no_grad():  # f_trd once more at t_check, where x_t' is carried there
-                if dyn.consistency_transport == "deformation" and self.deformation is not None:
-                    x_check = self.deform(t_check)["means"]
-                    x_check = x_check if rows is None else x_check[rows]
-                elif t_check != t:
+                if t_check != t:
                     span = t_check - t_prime
-                    x_check = integrate(x_run, None, params, span, self.dt_max, method=dyn.integrator)[0]
+                    x_check = integrate(x_run, None, params, span, self.dt_max, method=stage.integrator)[0]
                 else:
                     x_check = means
                 later = self.query_dynamics(x_check, t_check, rates=False)  # it reads velocities
             gap = acceleration_consistency(params, later, t_check - t_prime)  # the static ones' gap is zero
-            losses["acceleration"] = dyn.acceleration_consistency * share * gap
-        if dyn.angular_acceleration_penalty > 0 and learns_accelerations and len(x_run):
-            size = params.angular_acceleration.abs().mean()
-            losses["angular_acceleration"] = dyn.angular_acceleration_penalty * share * size
-        if dyn.rotation_consistency > 0:
-            gap = rotation_consistency(params, x_start, self.canonical_neighbours())  # detaches x itself
-            losses["rotation"] = dyn.rotation_consistency * gap
+            losses["acceleration"] = stage.acceleration_consistency * share * gap
         if rows is not None:
             means, quats = x_start.index_copy(0, rows, means), start["quats"].index_copy(0, rows, quats)
         if straight_through:
-            shift = (target[0] if at_t else start)["means"]
-            means = means + (shift - shift.detach())
+            means = means + (start["means"] - start["means"].detach())
         return {"means": means, "quats": quats, "scales": start["scales"]}, losses
 
-    def canonical_neighbours(self, refresh_every: int = 500) -> torch.Tensor:
-        """[N, k] nearest neighbours of each canonical Gaussian, found again when the Gaussians are
-        densified or pruned (the strategy then makes a new ``means`` parameter, even when the count
-        stays the same) and every ``refresh_every`` calls (the canonical means drift slowly)."""
-        param, cache = self.gaussians["means"], self._neighbours
-        if param is not cache["of"] or cache["age"] >= refresh_every:
-            k = self.cfg.dynamic.rotation_neighbours
-            cache.update(of=param, index=nearest_neighbours(param.detach(), k)[1], age=0)
-        cache["age"] += 1
-        return cache["index"]
-
-    # ----- any time, past or future -----------------------------------------------------------
-    @torch.no_grad()
-    def state_at(self, t: float, t_max: float) -> dict[str, torch.Tensor]:
-        """Gaussians at time ``t``: f_defo up to the handover time, then the learned physics.
-
-        The handover is ``t_max`` minus ``dynamic.handover_frames`` frame intervals: f_defo is least
-        constrained at the end of the training span, so (as the authors' code does) the physics takes
-        over a few frames before the data ends.
-        """
-        g = self.gaussians
-        if self.cfg.method == "static":
-            return {"means": g["means"], "quats": g["quats"], "scales": g["scales"]}
-        if self.dynamics is None:
-            return self.deform(t)
-        if self.deformation is None:
-            return self._physics_from(0.0, t)
-        t0 = self.handover_time(t_max)
-        if t <= t0:
-            return self.deform(t)
-        return self._with_free_bodies(t0, t, self._physics_from(t0, t))
-
-    def _with_free_bodies(
-        self, t0: float, t: float, state: dict[str, torch.Tensor]
-    ) -> dict[str, torch.Tensor]:
-        """``state`` (the learned physics at ``t``) with the free bodies' Gaussians moved as free bodies
-        from f_defo's state at ``t0`` (``physics/free_body.py``)."""
-        bodies = self.free_bodies
-        if not self.cfg.dynamic.free_bodies or bodies is None or not len(bodies["bodies"]):
-            return state
-        labels = bodies["labels"].to(state["means"].device)
-        if abs(bodies["t0"] - t0) > 1e-9 or labels.shape[0] != state["means"].shape[0]:
-            return state  # chosen for another handover or another set of Gaussians
-        return apply_free_bodies(state, self.deform(t0), labels, bodies["bodies"], t - t0)
-
-    def handover_time(self, t_max: float) -> float:
-        """Last time rendered by f_defo alone; later times are integrated from it."""
-        return max(0.0, t_max - self.cfg.dynamic.handover_frames * self.dt_max)
-
-    def _physics_from(
-        self, t0: float, t: float, moving: torch.Tensor | None = None
-    ) -> dict[str, torch.Tensor]:
-        """Deform to ``t0`` and chain integration steps of at most ``dt_max`` to ``t`` (forward or back).
-
-        ``moving`` [N] bool: the Gaussians that move (the others stay at their ``t0`` state); by default
-        those above the freeze threshold (``moving_mask``), or all when it is 0.
-        """
-        dyn = self.cfg.dynamic
-        state = self.deform(t0)
-        means, quats = state["means"], quat_normalize(state["quats"])
-        threshold = dyn.freeze_static_threshold if self.freeze_threshold is None else self.freeze_threshold
-        if moving is None and threshold > 0 and self.deformation is not None:
-            moving = self.moving_mask(t0, threshold)
-        if self.static_mask is not None:  # marked static in training: never moved by the physics
-            moving = ~self.static_mask if moving is None else moving & ~self.static_mask
-        params = self.query_dynamics(means, t0)
-        unseen = self.unseen_mask if dyn.hold_unseen > 0 else None
-        if unseen is not None and unseen.shape[0] == means.shape[0] and bool(unseen.any()):
-            # f_trd was never shown them
-            held = unseen & ~self._fields_agree(t0, means, params, dyn.hold_unseen)
-            moving = ~held if moving is None else moving & ~held
-        surface = None
-        if dyn.stay_on_surface > 0 and moving is not None and t > t0:
-            surface = self._surface_painters(means, moving)
-            stopped = torch.zeros_like(moving)  # painters stopped so far
-        span = t - t0
-        n = num_substeps(span, self.dt_max) if span else 0
-        h = span / max(n, 1)
-        # By default f_trd is queried once, at t0, and the constant accelerations evolve the parameters
-        # between steps (``integrate``); with ``extrapolation_requery`` Alg. 1 is applied progressively,
-        # f_trd queried at every step's start (or its end: ablation (4), no physics derivation).
-        requery = dyn.extrapolation_requery or not dyn.physics_derivation
-        new_means, new_quats = means, quats
-        for k in range(n):
-            s = t0 + k * h
-            if requery and (k > 0 or not dyn.physics_derivation):
-                params = self.query_dynamics(new_means, s if dyn.physics_derivation else s + h)
-            next_means, next_quats, evolved = step(new_means, new_quats, params, h, dyn.integrator)
-            params = params if requery else evolved
-            if surface is not None:  # stopped where they would leave their surface
-                stopped[surface.rows] |= surface.off(next_means[surface.rows])
-                next_means = torch.where(stopped[:, None], new_means, next_means)
-                next_quats = torch.where(stopped[:, None], new_quats, next_quats)
-            new_means, new_quats = next_means, next_quats
-        if moving is not None:
-            new_means = torch.where(moving[:, None], new_means, means)
-            new_quats = torch.where(moving[:, None], new_quats, quats)
-        return {"means": new_means, "quats": new_quats, "scales": state["scales"]}
-
-    def _fields_agree(
-        self, t0: float, means: torch.Tensor, params: DynamicsParams, ratio: float
-    ) -> torch.Tensor:
-        """[N] bool: f_trd's particle speed at ``t0`` is at most ``ratio`` times f_defo's mean speed over
-        the 4 frames before ``t0``, plus a floor of 0.05 scene units per unit of time in the fields'
-        frame (``dynamic.hold_unseen``)."""
-        frames = min(4.0, t0 / self.dt_max)
-        if self.deformation is None or frames <= 0:
-            return torch.ones(means.shape[0], dtype=torch.bool, device=means.device)
-        speed_defo = (means - self.deform(t0 - frames * self.dt_max)["means"]).norm(dim=-1) / (
-            frames * self.dt_max
-        )
-        speed_phys = particle_velocity(means, params.velocity, params.angular_velocity).norm(dim=-1)
-        return speed_phys <= ratio * (speed_defo + 0.05 * float(self.field_scale))
-
-    def _surface_painters(self, means: torch.Tensor, moving: torch.Tensor) -> SurfacePainters | None:
-        """The moving Gaussians at least ``dynamic.stay_on_surface`` of whose
-        ``dynamic.surface_neighbours`` nearest Gaussians (at ``means``) do not move, and the still
-        Gaussians that make their surface; None where there are none. Kept for the next call with the
-        same handover state (every rendered time after the handover)."""
-        dyn, cached = self.cfg.dynamic, self._surface
-        settings = (dyn.stay_on_surface, dyn.surface_neighbours)
-        if (
-            cached is not None
-            and cached[3] == settings
-            and cached[0].device == means.device
-            and torch.equal(cached[0], means)
-            and torch.equal(cached[1], moving)
-        ):
-            return cached[2]
-        painters = SurfacePainters.find(means, moving, dyn.stay_on_surface, dyn.surface_neighbours)
-        self._surface = (means, moving, painters, settings)
-        return painters
-
-    @torch.no_grad()
-    def moving_mask(self, t_max: float, threshold: float, samples: int = 8) -> torch.Tensor:
-        """Gaussians whose f_defo displacement exceeds ``threshold`` at some training time."""
-        return self.max_displacement(t_max, samples) > threshold
-
+    # ----- f_defo over the training span ----------------------------------------------------
     @torch.no_grad()
     def max_displacement(self, t_max: float, samples: int = 8) -> torch.Tensor:
         """[N] the largest f_defo displacement of each Gaussian over ``samples + 1`` times in [0, t_max]."""

@@ -10,7 +10,7 @@ nothing still (``isolation``) and whose free body does not predict the last trai
 worse than the learned physics. The parts are found without labels (``rigid_components``).
 
 Pure functions on tensors; the model applies the chosen bodies in ``TraceModel.state_at``.
-Not in the paper (``dynamic.free_bodies``; off in ``paper``).
+Not in the paper (``extrapolation.free_bodies``; off in ``paper``).
 """
 
 from __future__ import annotations

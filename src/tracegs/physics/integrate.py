@@ -118,21 +118,6 @@ def local_angular_velocity(x: torch.Tensor, u: torch.Tensor, neighbours: torch.T
     return torch.linalg.solve(a, b)
 
 
-def rotation_consistency(params: DynamicsParams, x: torch.Tensor, neighbours: torch.Tensor) -> torch.Tensor:
-    """Mean L1 gap between each particle's angular velocity ``w`` and the rotation of its neighbourhood.
-
-    A particle's velocity ``v_bar + w x x`` is explained as well by a translation (w = 0) as by its
-    body's rotation: photometric losses fix the velocity, not the split. The rotation is, however,
-    visible across the neighbourhood: the particles' velocities (held fixed here) are fitted with a
-    local rigid motion (``local_angular_velocity``) and ``w`` is pulled towards its angular velocity.
-    Zero for any rigid motion; the gradient reaches ``w`` only (``v_bar`` then follows through the
-    photometric loss, which keeps the velocities). In rad / s.
-    """
-    u = particle_velocity(x, params.velocity, params.angular_velocity).detach()
-    target = local_angular_velocity(x.detach(), u, neighbours)
-    return (params.angular_velocity - target).abs().mean()
-
-
 def acceleration_consistency(params: DynamicsParams, later: DynamicsParams, s: float) -> torch.Tensor:
     """Mean L1 gap, in acceleration units, between the velocities ``later`` observed ``s`` after the
     query of ``params`` (e.g. f_trd queried again along the trajectory) and those that ``params``'

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from ..eval.metrics import ssim
+from ..image_metrics import ssim
 
 
 def photometric_loss(

@@ -16,36 +16,18 @@ from typing import Any
 import torch
 from torch import nn
 
+from ..config import DensifyConfig
+from ..data.cameras import scene_extent_from_cameras
 from ..physics.so3 import quat_to_rotmat
 
-
-@dataclass
-class DensifyConfig:
-    """Adaptive density control (clone / split / prune / opacity reset), 3DGS defaults."""
-
-    refine_start: int = 500
-    """Step (within the stage) at which densification starts."""
-    refine_stop: int = 15_000
-    """Step after which the number of Gaussians is frozen."""
-    refine_every: int = 100
-    """Densify and prune every this many steps."""
-    reset_every: int = 3000
-    """Reset opacities to ``reset_opacity`` every this many steps (0 = never)."""
-    reset_opacity: float = 0.01
-    """Opacity after a reset (3DGS: 0.01)."""
-    grow_grad2d: float = 0.0002
-    """View-space (NDC) positional gradient above which a Gaussian is cloned or split."""
-    grow_scale3d: float = 0.01
-    """Relative to the scene extent: smaller Gaussians are cloned, larger ones split."""
-    prune_opacity: float = 0.005
-    """Gaussians below this opacity are removed."""
-    prune_scale3d: float = 0.1
-    """Relative to the scene extent: larger Gaussians are removed (after the first opacity reset)."""
-    max_gaussians: int = 1_000_000
-    """Growth stops at this count (a budget for slow devices)."""
-    refine_stop_fraction: float = 0.5
-    """Densification and opacity resets also stop after this fraction of the run's iterations, so that a
-    shortened run (e.g. ``--dynamic-iterations 2000``) still ends with a phase of plain optimisation."""
+__all__ = [
+    "DefaultStrategy",
+    "DensifyConfig",
+    "duplicate",
+    "remove",
+    "scene_extent_from_cameras",
+    "split_gaussians",
+]
 
 
 @dataclass
@@ -212,11 +194,6 @@ def reset_optimizer_state(opt: torch.optim.Optimizer) -> None:
         for k in ("exp_avg", "exp_avg_sq"):
             if k in st:
                 st[k].zero_()
-
-
-def scene_extent_from_cameras(centers: torch.Tensor) -> float:
-    """3DGS's ``spatial_lr_scale``: 1.1 x the radius of the camera centres around their mean."""
-    return 1.1 * float((centers - centers.mean(0)).norm(dim=-1).max().clamp_min(1e-6))
 
 
 def log_interp(start: float, end: float, frac: float) -> float:

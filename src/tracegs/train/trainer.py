@@ -1,8 +1,8 @@
-"""The training loop: stage 1 (static 3DGS at t = 0), stage 2 (TRACE or DefGS), checkpoints, resume.
+"""The training loop: stage 1 (static 3DGS at t = 0), stage 2 (TRACE or DefGS), checkpoints, resume,
+and the post-training calibration of the extrapolation state when the last step is done.
 
-A run folder holds ``config.json`` (the resolved config), ``checkpoint.pt`` (written atomically every
-``checkpoint_every`` steps; a killed run resumes from it), ``log.jsonl`` (losses and timings) and
-``summary.json`` (wall time, iterations, Gaussians, per-part timings).
+What the run folder holds, and how it is read back: ``run.py``. A checkpoint is written atomically
+every ``checkpoint_every`` steps; a killed run resumes from it.
 """
 
 from __future__ import annotations
@@ -17,32 +17,39 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
-from ..config import (
-    TrainConfig,
-    config_from_dict,
-    config_to_dict,
-    cpu_has_amx_bf16,
-    load_config,
-    save_config,
-)
-from ..data.blender import load_scene
+from ..config import TrainConfig, config_to_dict
+from ..data.cameras import scene_extent_from_cameras
 from ..data.dataset import ViewDataset, frame_interval
+from ..data.scene import load_scene
+from ..extrapolate import calibrate
 from ..models.gaussians import create_gaussians, empty_like_params, random_gaussians
 from ..models.trace import TraceModel
 from ..render.rendering import resolve_backend
-from ..utils import atomic_torch_save, atomic_write_text, resolve_device, seed_everything, synchronize
-from .calibrate import calibrate_after_training, stored_free_bodies
+from ..run import (
+    CHECKPOINT,
+    CONFIG,
+    LOG,
+    SUMMARY,
+    changed_settings,
+    load_extrapolation,
+    load_tensors,
+    save_config,
+    save_extrapolation,
+    save_tensors,
+    training_changes,
+)
+from ..utils import atomic_write_text, resolve_device, seed_everything, synchronize
 from .losses import photometric_loss
 from .optim import field_lrs, field_optimizer, gaussian_optimizers, means_lr, set_group_lrs, set_lr
 from .scene_frame import default_aabb, field_frame
-from .strategy import DefaultStrategy, scene_extent_from_cameras
+from .strategy import DefaultStrategy
 
 
 def initial_gaussians(cfg: TrainConfig, aabb: torch.Tensor, device) -> torch.nn.ParameterDict:
     """From ``points3d.ply`` in the scene folder if there is one (SfM points), else random in ``aabb``."""
     ply = Path(cfg.data) / "points3d.ply"
     if ply.is_file():
-        from ..export.ply import read_points
+        from ..data.points import read_points
 
         points, colors = read_points(ply)
         return create_gaussians(points.to(device), colors.to(device), cfg.sh_degree)
@@ -54,8 +61,8 @@ class Trainer:
 
     def __init__(self, cfg: TrainConfig, progress: bool = True):
         self.cfg, self.progress = cfg, progress
-        if cfg.dynamic.time_growth_stages < 1:
-            raise ValueError(f"dynamic.time_growth_stages must be >= 1, got {cfg.dynamic.time_growth_stages}")
+        if cfg.stage2.time_growth_stages < 1:
+            raise ValueError(f"stage2.time_growth_stages must be >= 1, got {cfg.stage2.time_growth_stages}")
         self.device = resolve_device(cfg.device)
         self.generator = seed_everything(cfg.seed)
         self.run = Path(cfg.run)
@@ -72,7 +79,7 @@ class Trainer:
         self.extent = scene_extent_from_cameras(self.data.camera_centers())
         self.aabb = default_aabb(cfg, self.data).to(self.device)
         self.static_views = self._static_views()
-        self.static_fraction: float | None = None  # of the Gaussians marked static (dynamic.skip_static)
+        self.static_fraction: float | None = None  # of the Gaussians marked static (stage2.skip_static)
         gaussians = initial_gaussians(cfg, self.aabb, self.device)
         self.model = TraceModel(cfg, gaussians, self.aabb, self.dt_frame).to(self.device)
         self.model.set_field_frame(*field_frame(cfg, self.data))
@@ -81,11 +88,10 @@ class Trainer:
         self.strategy = DefaultStrategy(cfg.densify, self.extent, cfg.total_iterations)
         self.strategy_state = self.strategy.initialize_state()
         self.step, self.train_seconds = 0, 0.0
-        self.freeze_psnr: dict[str, float] = {}  # training-view PSNR per candidate freeze threshold
-        self.free_body_report: list[dict] = []  # the parts backtested for a free body (calibrate.py)
+        self.extrapolation = None  # the post-training state (``extrapolate.calibrate``), once trained
         self.timings: dict[str, float] = defaultdict(float)
-        if (self.run / "checkpoint.pt").is_file():
-            self._resume(self.run / "checkpoint.pt")
+        if (self.run / CHECKPOINT).is_file():
+            self._resume(self.run / CHECKPOINT)
 
     # ----- data ---------------------------------------------------------------------------------
     def _static_views(self) -> list[int]:
@@ -96,10 +102,10 @@ class Trainer:
         return first if len(first) >= 3 else list(range(len(self.data)))
 
     def time_limit(self, dyn_step: int) -> float:
-        """End of the sampled time range at a dynamic step: it grows in ``dynamic.time_growth_stages``
-        equal steps over the first ``dynamic.time_growth_fraction`` of the stage."""
-        growth = self.cfg.dynamic.time_growth_fraction * self.cfg.dynamic_iterations
-        stages = self.cfg.dynamic.time_growth_stages
+        """End of the sampled time range at a dynamic step: it grows in ``stage2.time_growth_stages``
+        equal steps over the first ``stage2.time_growth_fraction`` of the stage."""
+        growth = self.cfg.stage2.time_growth_fraction * self.cfg.dynamic_iterations
+        stages = self.cfg.stage2.time_growth_stages
         frac = 1.0 if growth <= 0 else min(1.0, (1 + (stages * dyn_step) // growth) / stages)
         return self.t_max * frac
 
@@ -111,7 +117,7 @@ class Trainer:
 
     def _t_prime(self, t: float) -> float:
         """t' = t -/+ dt with a random sign, kept inside [0, t_max]."""
-        dt = self.cfg.dynamic.dt_frames * self.dt_frame
+        dt = self.cfg.stage2.dt_frames * self.dt_frame
         sign = random.choice((-1.0, 1.0))
         t_prime = t - sign * dt
         if not 0.0 <= t_prime <= self.t_max:
@@ -119,10 +125,10 @@ class Trainer:
         return min(max(t_prime, 0.0), self.t_max)
 
     def _consistency_time(self, t_prime: float, t: float, limit: float) -> float:
-        """Where the acceleration consistency reads f_trd again: ``dynamic.consistency_frames`` frame
+        """Where the acceleration consistency reads f_trd again: ``stage2.consistency_frames`` frame
         intervals from t' in the direction of t (the other way where that leaves [0, ``limit``],
         clamped), or t itself when the setting is 0."""
-        frames = self.cfg.dynamic.consistency_frames
+        frames = self.cfg.stage2.consistency_frames
         if frames <= 0 or t == t_prime:
             return t
         span = math.copysign(frames * self.dt_frame, t - t_prime)
@@ -132,9 +138,9 @@ class Trainer:
         return min(max(t_check, 0.0), max(limit, t))
 
     def _static_marking_step(self) -> int:
-        """Step at which ``dynamic.skip_static`` marks the static Gaussians: densification has stopped
+        """Step at which ``stage2.skip_static`` marks the static Gaussians: densification has stopped
         (the set of Gaussians is final) and the sampled time range covers the training span."""
-        growth = math.ceil(self.cfg.dynamic.time_growth_fraction * self.cfg.dynamic_iterations)
+        growth = math.ceil(self.cfg.stage2.time_growth_fraction * self.cfg.dynamic_iterations)
         return max(self.strategy.refine_stop, self.cfg.static_iterations + growth)
 
     # ----- one step -------------------------------------------------------------------------------
@@ -164,16 +170,14 @@ class Trainer:
         else:
             if dyn_step == 0:
                 self.model.begin_dynamic_stage()
-            skip = cfg.dynamic.skip_static
-            if skip > 0 and self.model.static_mask is None and step == self._static_marking_step():
-                self.static_fraction = self.model.mark_static(skip * self.extent, self.t_max)
+            skip = cfg.stage2.skip_static
+            if skip and self.model.static_mask is None and step == self._static_marking_step():
+                threshold = cfg.stage2.static_displacement * self.extent
+                self.static_fraction = self.model.mark_static(threshold, self.t_max)
             view = self.data[self._dynamic_view(dyn_step)]
-            physics = dyn_step >= cfg.dynamic.warmup_deformation_steps
             t_prime = self._t_prime(view.time)
             t_check = self._consistency_time(t_prime, view.time, self.time_limit(dyn_step))
-            state, extra_losses = self.model.training_state(
-                t_prime, view.time, physics=physics, t_check=t_check
-            )
+            state, extra_losses = self.model.training_state(t_prime, view.time, t_check=t_check)
         t_fields = self._clock()
         if cfg.random_background:
             background = torch.rand(3, device=self.device)
@@ -196,10 +200,8 @@ class Trainer:
         t_render = self._clock()
         losses["loss"].backward()
         t_backward = self._clock()
-        hold = not static and dyn_step < cfg.dynamic.hold_gaussians_steps
         for opt in self.optimizers.values():
-            if not hold:
-                opt.step()
+            opt.step()
             opt.zero_grad(set_to_none=True)
         if not static and self.field_opt is not None:
             self.field_opt.step()
@@ -224,12 +226,12 @@ class Trainer:
     def train(self) -> dict:
         cfg = self.cfg
         self.run.mkdir(parents=True, exist_ok=True)
-        save_config(cfg, self.run / "config.json")
+        save_config(cfg, self.run / CONFIG)
         total = cfg.total_iterations
         if self.progress:
             tqdm.write(self.describe())
         bar = tqdm(total=total, initial=self.step, disable=not self.progress, desc=f"train {cfg.method}")
-        log = (self.run / "log.jsonl").open("a")
+        log = (self.run / LOG).open("a")
         try:
             while self.step < total:
                 stats = self.train_step()
@@ -247,12 +249,12 @@ class Trainer:
         finally:
             bar.close()
             log.close()
-        if self.step % cfg.checkpoint_every:  # the last steps are kept if the calibration fails
-            self.save()
-        self.calibrate()
-        self.save()
+        self.save()  # the last step (never saved in the loop) is kept if the calibration fails
+        if self.extrapolation is None:  # (a finished run resumed with the same settings keeps its own)
+            self.extrapolation = calibrate(self.model, self.t_max, self.extent)
+        save_extrapolation(self.run, self.extrapolation)
         summary = self.summary()
-        atomic_write_text(self.run / "summary.json", json.dumps(summary, indent=2))
+        atomic_write_text(self.run / SUMMARY, json.dumps(summary, indent=2))
         return summary
 
     def describe(self) -> str:
@@ -275,7 +277,7 @@ class Trainer:
         return text
 
     def summary(self) -> dict:
-        steps = max(self.step, 1)
+        steps, state = max(self.step, 1), self.extrapolation
         return {
             "method": self.cfg.method,
             "preset": self.cfg.preset,
@@ -284,23 +286,14 @@ class Trainer:
             "gaussians": int(self.model.gaussians["means"].shape[0]),
             "train_seconds": round(self.train_seconds, 2),
             "t_max": self.t_max,
-            "freeze_threshold": self.model.freeze_threshold,
-            "freeze_psnr": self.freeze_psnr,
+            "freeze_threshold": state.freeze_threshold if state else None,
+            "freeze_psnr": state.report.get("freeze_psnr", {}) if state else {},
             "static_fraction": self.static_fraction,
-            "free_bodies": self.free_body_report,
+            "free_bodies": state.report.get("free_bodies", []) if state else [],
             "ms_per_iteration": {k: round(1000 * v / steps, 2) for k, v in self.timings.items()},
             "device": str(self.device),
             "rasteriser": resolve_backend(self.cfg.backend, self.device),
         }
-
-    def calibrate(self) -> None:
-        """Post-training choices on the training images (``calibrate.py``): the Gaussians no camera
-        sees before the handover, the freeze threshold, then the free bodies."""
-        chosen = calibrate_after_training(self.model, self.t_max, self.extent)
-        if chosen.get("freeze_psnr"):
-            self.freeze_psnr = {f"{k:.6g}": round(v, 3) for k, v in chosen["freeze_psnr"].items()}
-        if "free_bodies" in chosen:
-            self.free_body_report = chosen["free_bodies"]
 
     # ----- checkpoints -----------------------------------------------------------------------------
     def save(self) -> Path:
@@ -310,24 +303,21 @@ class Trainer:
             "timings": dict(self.timings),
             "config": config_to_dict(self.cfg),
             "t_max": self.t_max,
-            "freeze_threshold": self.model.freeze_threshold,
             "static_mask": self.model.static_mask,
-            "unseen_mask": self.model.unseen_mask,
-            "free_bodies": self.model.free_bodies,
             "model": self.model.state_dict(),
             "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
             "field_optimizer": self.field_opt.state_dict() if self.field_opt is not None else None,
             "rng": {"torch": torch.get_rng_state(), "python": random.getstate()},
         }
-        return atomic_torch_save(ckpt, self.run / "checkpoint.pt")
+        return save_tensors(ckpt, self.run / CHECKPOINT)
 
     def _resume(self, path: Path) -> None:
-        ckpt = torch.load(path, map_location=self.device, weights_only=False)
+        ckpt = load_tensors(path, self.device)
         try:
             changed = changed_settings(ckpt.get("config", {}), self.cfg)
         except ValueError as err:
             raise ValueError(f"{path}: {err}; train into a new --run folder") from err
-        if set(changed) - AFTER_TRAINING:
+        if training_changes(changed):
             raise ValueError(
                 f"{path}: the checkpoint was trained with other settings ({', '.join(changed)}); "
                 "resume with the same settings, or train into a new --run folder"
@@ -343,92 +333,9 @@ class Trainer:
         self.step, self.train_seconds = ckpt["step"], ckpt["train_seconds"]
         self.model.set_static_mask(ckpt.get("static_mask"))
         if not changed:  # else calibrated again with the new settings when the steps are done
-            self.model.freeze_threshold = ckpt.get("freeze_threshold")
-            self.model.unseen_mask = ckpt.get("unseen_mask")
-            self.model.free_bodies = stored_free_bodies(ckpt.get("free_bodies"))
+            self.extrapolation = load_extrapolation(self.run, self.device)
         if self.model.static_mask is not None:
             self.static_fraction = float(self.model.static_mask.float().mean())
         self.timings.update(ckpt.get("timings", {}))
         torch.set_rng_state(ckpt["rng"]["torch"].cpu())  # map_location moved it to the run's device
         random.setstate(ckpt["rng"]["python"])
-
-
-# Settings that may change when a killed run is resumed: where things are and the arithmetic of the
-# machine (bf16 where the CPU has AMX), not what is trained.
-RESUMABLE_CHANGES = frozenset({"run", "data", "device", "backend", "bf16", "checkpoint_every", "log_every"})
-AFTER_TRAINING = frozenset(
-    {
-        "dynamic.handover_frames",
-        "dynamic.extrapolation_requery",
-        "dynamic.hold_unseen",
-        "dynamic.stay_on_surface",
-        "dynamic.surface_neighbours",
-        "dynamic.freeze_static_threshold",
-        "dynamic.freeze_static_auto",
-        "dynamic.free_bodies",
-        "dynamic.free_body_window",
-        "dynamic.free_body_backtest",
-        "dynamic.free_body_isolation",
-        "dynamic.free_body_tolerance",
-        "dynamic.free_body_refine_steps",
-        "dynamic.free_body_refine_views",
-    }
-)
-"""Settings that only the calibration after the last step and the rendering read: a run resumed with
-new values of them keeps its training and redoes its calibration (a finished run in seconds)."""
-
-
-def changed_settings(saved: dict, cfg: TrainConfig) -> list[str]:
-    """Dotted names of the settings in which a run's saved config differs from ``cfg`` (the resumable
-    ones excepted): empty when the run can go on, or be reused, with ``cfg``. Settings added since the
-    run was saved read as their defaults; one this code no longer knows raises ValueError."""
-    if saved:
-        saved = config_to_dict(config_from_dict(TrainConfig, saved))
-    return _changed_settings(saved, config_to_dict(cfg))
-
-
-def _changed_settings(saved: dict, current: dict, prefix: str = "") -> list[str]:
-    """Dotted names of the settings that differ between two config dicts (resumable ones excepted)."""
-    changed = []
-    for key in sorted(set(saved) | set(current)):
-        name = prefix + key
-        a, b = saved.get(key), current.get(key)
-        if isinstance(a, dict) and isinstance(b, dict):
-            changed += _changed_settings(a, b, name + ".")
-        elif a != b and name not in RESUMABLE_CHANGES:
-            changed.append(name)
-    return changed
-
-
-def load_run(run: str | Path, device: str = "auto") -> tuple[TraceModel, TrainConfig, dict]:
-    """A trained model from a run folder (for rendering and evaluation), with its config and metadata."""
-    run = Path(run)
-    cfg = load_config(run / "config.json")
-    path = run / "checkpoint.pt"
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no checkpoint (has `tracegs train --run {run}` finished a step?)")
-    dev = resolve_device(device)
-    ckpt = torch.load(path, map_location=dev, weights_only=False)
-    state = ckpt["model"]
-    gaussians = empty_like_params(
-        {k.split(".", 1)[1]: v for k, v in state.items() if k.startswith("gaussians.")}
-    )
-    model = TraceModel(cfg, gaussians, state["aabb"], float(state["frame_interval"])).to(dev)
-    model.load_state_dict(state)
-    model.eval()
-    # A run trained where bf16 paid (a CPU with AMX, as `cpu-fast` chooses) is rendered in fp32 on
-    # CPUs without AMX: there bf16 is slower, and fp32 gives the fields' values exactly.
-    model.bf16 = cfg.bf16 and cpu_has_amx_bf16()
-    model.freeze_threshold = ckpt.get("freeze_threshold")
-    model.set_static_mask(ckpt.get("static_mask"))
-    model.unseen_mask = ckpt.get("unseen_mask")
-    model.free_bodies = stored_free_bodies(ckpt.get("free_bodies"))
-    if Path(cfg.data).is_dir():  # a checkpoint written before training ended, or by an older version
-        calibrate_after_training(model, ckpt["t_max"])
-    meta = {
-        "step": ckpt["step"],
-        "train_seconds": ckpt["train_seconds"],
-        "t_max": ckpt["t_max"],
-        "freeze_threshold": model.freeze_threshold,
-    }
-    return model, cfg, meta

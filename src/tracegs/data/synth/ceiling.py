@@ -126,7 +126,7 @@ class SceneFolder:
 
 def frozen_appearance(scene: SceneFolder, appearance_frames: list[int], score_frames: list[int]) -> dict:
     """Score ``score_frames`` (every camera) rendered with the appearance of ``appearance_frames``."""
-    from ...eval.metrics import mae_psnr
+    from ...image_metrics import mae_psnr
 
     n = len(scene.names)
     error, pixels, frame_mse = np.zeros(n), np.zeros(n), []
@@ -173,7 +173,7 @@ def frozen_appearance(scene: SceneFolder, appearance_frames: list[int], score_fr
 def appearance_ceiling(folder: str | Path, handover_frames: float = 4.0, mean_frames: int = 12) -> dict:
     """The ``handover`` and ``mean`` bounds of a scene's extrapolation split (every camera, t > t_max).
 
-    ``handover_frames``: frames before t_max where the extrapolation starts (``dynamic.handover_frames``);
+    ``handover_frames``: frames before t_max where the extrapolation starts (``extrapolation.handover_frames``);
     ``mean_frames``: training frames, evenly spaced from t = 0 to t_max, averaged by the ``mean`` bound.
     """
     scene = SceneFolder(folder)

@@ -1,0 +1,83 @@
+"""The post-training state of a run: everything the extrapolation policy chose on the training images
+when training ended, saved in the run folder (``extrapolation.pt``) and read back as it is.
+
+N: Gaussians, K: free bodies.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+
+from ..physics.free_body import FREE_BODY_NUMBERS
+
+STATE_VERSION = 1
+"""Bumped when the saved layout changes; a run with another version is calibrated again
+(``tracegs calibrate --run RUN``)."""
+
+
+@dataclass
+class ExtrapolationState:
+    """What ``gaussians_at`` needs besides the model to render any time past the training span."""
+
+    t_max: float
+    """Last training time of the run; the handover lies ``extrapolation.handover_frames`` before it."""
+    freeze_threshold: float | None = None
+    """Gaussians whose f_defo displacement up to the handover stays below this (scene units) hold still
+    after it (``extrapolation.freeze_static``); 0 or None (not chosen): none."""
+    unseen: torch.Tensor | None = None
+    """[N] bool: the Gaussians no training image shows before the handover (``extrapolation.hold_unseen``);
+    None: not looked for."""
+    free_bodies: dict | None = None
+    """``{"t0": handover, "labels": [N] long (0: the learned physics, k: body k - 1), "bodies": [K, 15]
+    float64 (``FreeBody.as_tensor``)}``; None: not chosen."""
+    report: dict = field(default_factory=dict)
+    """What the choices were made from, for ``summary.json``: ``freeze_psnr`` {threshold: training-view
+    PSNR}, ``free_bodies`` [one entry per part backtested]."""
+    cache: dict = field(default_factory=dict, repr=False, compare=False)
+    """Derived data kept between renders (the surface painters of one handover state); never saved."""
+
+    def to_dict(self) -> dict:
+        """Plain tensors, numbers and strings: what ``torch.load(weights_only=True)`` reads back."""
+        return {
+            "version": STATE_VERSION,
+            "t_max": float(self.t_max),
+            "freeze_threshold": self.freeze_threshold,
+            "unseen": self.unseen,
+            "free_bodies": self.free_bodies,
+            "report": _plain(self.report),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict, device: torch.device | str = "cpu") -> ExtrapolationState:
+        """The state saved by :meth:`to_dict`; ValueError when its version or layout is another."""
+        if data.get("version") != STATE_VERSION:
+            raise ValueError(f"extrapolation state version {data.get('version')!r}, expected {STATE_VERSION}")
+        bodies = data.get("free_bodies")
+        if bodies is not None:
+            if bodies["bodies"].shape[-1] != FREE_BODY_NUMBERS:
+                raise ValueError(
+                    f"free bodies of {bodies['bodies'].shape[-1]} numbers, expected {FREE_BODY_NUMBERS}"
+                )
+            bodies = {**bodies, "labels": bodies["labels"].to(device)}
+        unseen = data.get("unseen")
+        return cls(
+            t_max=float(data["t_max"]),
+            freeze_threshold=data.get("freeze_threshold"),
+            unseen=None if unseen is None else unseen.to(device),
+            free_bodies=bodies,
+            report=data.get("report") or {},
+        )
+
+
+def _plain(value):
+    """``value`` with non-finite floats as None, so that the report is valid JSON."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value

@@ -1,0 +1,234 @@
+"""The run folder: what ``tracegs train`` writes and every other command reads.
+
+``RUN/config.json``        the resolved config (plain JSON parsed into the dataclasses of ``config.py``)
+``RUN/checkpoint.pt``      the model, optimisers and RNG states (written atomically; a killed run resumes)
+``RUN/extrapolation.pt``   the post-training state (``extrapolate.ExtrapolationState``), chosen once on
+                           the training images when training ends; ``tracegs calibrate`` chooses it again
+``RUN/summary.json``       wall time, iterations, Gaussians, per-part timings, what the calibration chose
+``RUN/log.jsonl``          losses and timings every ``log_every`` steps
+
+Both ``.pt`` files hold tensors and plain data only and are read with ``torch.load(weights_only=True)``:
+opening someone else's run folder never executes code from it. Reading a run computes nothing.
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from .config import TrainConfig, config_from_dict, config_to_dict, cpu_has_amx_bf16
+from .extrapolate import ExtrapolationState
+from .models.gaussians import empty_like_params
+from .models.trace import TraceModel
+from .run_compat import migrate_config
+from .utils import atomic_torch_save, atomic_write_text, resolve_device
+
+CONFIG, CHECKPOINT, EXTRAPOLATION, SUMMARY, LOG = (
+    "config.json",
+    "checkpoint.pt",
+    "extrapolation.pt",
+    "summary.json",
+    "log.jsonl",
+)
+
+
+class RunError(ValueError):
+    """A run folder that cannot be read as it is; the message names the file and what to do."""
+
+
+# ----- config -------------------------------------------------------------------------------------
+def save_config(cfg: TrainConfig, path: Path) -> None:
+    atomic_write_text(path, json.dumps(config_to_dict(cfg), indent=2))
+
+
+def config_from_saved(data: dict, source: Path | str = "config") -> TrainConfig:
+    """A config from its saved JSON data, that of an earlier version of tracegs included
+    (``run_compat.migrate_config``); RunError naming ``source`` when it cannot be read."""
+    try:
+        return config_from_dict(TrainConfig, migrate_config(data))
+    except (ValueError, TypeError) as err:
+        raise RunError(f"{source}: {err}") from None
+
+
+def load_config(path: Path) -> TrainConfig:
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no config.json here (is this a tracegs run folder?)")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise RunError(f"{path}: not valid JSON ({err})") from None
+    return config_from_saved(data, path)
+
+
+# ----- tensors ------------------------------------------------------------------------------------
+def save_tensors(obj: dict, path: Path) -> Path:
+    return atomic_torch_save(obj, path)
+
+
+def load_tensors(path: Path, device: torch.device | str = "cpu") -> dict:
+    """A ``.pt`` file of the run folder, read with ``weights_only=True``: tensors, numbers, strings and
+    containers of them. Anything else (a pickled object, which could run code) is refused."""
+    path = Path(path)
+    try:
+        return torch.load(path, map_location=device, weights_only=True)
+    except pickle.UnpicklingError as err:
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise RunError(
+            f"{path}: refused: it holds pickled Python objects other than tensors and plain data, which "
+            f"could run code when loaded ({first}). tracegs never writes such objects; open run "
+            "folders only from sources you trust."
+        ) from None
+    except (RuntimeError, EOFError, OSError) as err:
+        raise RunError(f"{path}: not a readable checkpoint ({str(err).splitlines()[0]})") from None
+
+
+def save_extrapolation(run: Path, state: ExtrapolationState) -> Path:
+    return save_tensors(state.to_dict(), Path(run) / EXTRAPOLATION)
+
+
+def load_extrapolation(run: Path, device: torch.device | str = "cpu") -> ExtrapolationState | None:
+    """The saved post-training state, or None when the run has none (or one of another version)."""
+    path = Path(run) / EXTRAPOLATION
+    if not path.is_file():
+        return None
+    try:
+        return ExtrapolationState.from_dict(load_tensors(path, device), device)
+    except (ValueError, KeyError):
+        return None
+
+
+# ----- a trained run ------------------------------------------------------------------------------
+@dataclass
+class Run:
+    """A trained run as read from its folder."""
+
+    path: Path
+    model: TraceModel
+    config: TrainConfig
+    state: ExtrapolationState
+    meta: dict
+    """``step``, ``train_seconds``, ``t_max``, ``freeze_threshold``."""
+
+
+def build_model(cfg: TrainConfig, model_state: dict, device: torch.device) -> TraceModel:
+    """The model of a checkpoint's ``model`` state dict, in eval mode on ``device``."""
+    gaussians = empty_like_params(
+        {k.split(".", 1)[1]: v for k, v in model_state.items() if k.startswith("gaussians.")}
+    )
+    model = TraceModel(cfg, gaussians, model_state["aabb"], float(model_state["frame_interval"])).to(device)
+    model.load_state_dict(model_state)
+    return model.eval()
+
+
+def needs_calibration(model: TraceModel) -> bool:
+    """Whether the model has an extrapolation state to choose: TRACE with both fields."""
+    return model.dynamics is not None and model.deformation is not None
+
+
+def load_run(run: str | Path, device: str = "auto") -> Run:
+    """A trained run (for rendering and evaluation). Nothing is fitted or trained here: a TRACE run
+    without its post-training state raises RunError with the command that makes it."""
+    run = Path(run)
+    cfg = load_config(run / CONFIG)
+    path = run / CHECKPOINT
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no checkpoint (has `tracegs train --run {run}` finished a step?)")
+    dev = resolve_device(device)
+    ckpt = load_tensors(path, dev)
+    model = build_model(cfg, ckpt["model"], dev)
+    # A run trained where bf16 paid (a CPU with AMX, as `cpu-fast` chooses) is rendered in fp32 on
+    # CPUs without AMX: there bf16 is slower, and fp32 gives the fields' values exactly.
+    model.bf16 = cfg.bf16 and cpu_has_amx_bf16()
+    model.set_static_mask(ckpt.get("static_mask"))
+    state = load_extrapolation(run, dev)
+    if state is None:
+        from .run_compat import state_from_old_checkpoint
+
+        state = state_from_old_checkpoint(ckpt, dev)
+    if state is None:
+        if needs_calibration(model):
+            raise RunError(
+                f"{run}: no post-training state ({EXTRAPOLATION}): training did not finish, or an older "
+                f"tracegs wrote the run. Make it with `tracegs calibrate --run {run}` (it reads the "
+                "training images; a finished run takes a minute)."
+            )
+        state = ExtrapolationState(t_max=float(ckpt["t_max"]))
+    meta = {
+        "step": ckpt["step"],
+        "train_seconds": ckpt["train_seconds"],
+        "t_max": ckpt["t_max"],
+        "freeze_threshold": state.freeze_threshold,
+    }
+    return Run(run, model, cfg, state, meta)
+
+
+def calibrate_run(
+    run: str | Path, device: str = "auto", settings: dict | None = None, data: str | Path | None = None
+) -> ExtrapolationState:
+    """``tracegs calibrate``: choose a run's post-training state again on its training images (after
+    changing ``extrapolation`` settings, or for a run written by an older tracegs) and save it.
+    ``settings``: ``extrapolation`` fields by dotted name (``{"extrapolation.free_bodies": False}``),
+    stored in the run's config; ``data``: the scene folder, when it has moved since training."""
+    from .config import apply_overrides
+    from .extrapolate import calibrate
+
+    run = Path(run)
+    cfg = load_config(run / CONFIG)
+    if settings:
+        if any(not k.startswith("extrapolation.") for k in settings):
+            raise ValueError("tracegs calibrate changes extrapolation settings only (extrapolation.*)")
+        cfg = apply_overrides(cfg, settings)
+    if data is not None:
+        cfg.data = Path(data)
+    dev = resolve_device(device)
+    ckpt = load_tensors(run / CHECKPOINT, dev)
+    model = build_model(cfg, ckpt["model"], dev)
+    model.bf16 = cfg.bf16 and cpu_has_amx_bf16()
+    model.set_static_mask(ckpt.get("static_mask"))
+    state = calibrate(model, float(ckpt["t_max"]))
+    save_extrapolation(run, state)
+    save_config(cfg, run / CONFIG)
+    return state
+
+
+# ----- whether a run folder was made with a config ------------------------------------------------
+RESUMABLE_CHANGES = frozenset({"run", "data", "device", "backend", "bf16", "checkpoint_every", "log_every"})
+"""Settings that may change when a killed run is resumed: where things are and the arithmetic of the
+machine (bf16 where the CPU has AMX), not what is trained."""
+
+
+def is_after_training(name: str) -> bool:
+    """Whether the dotted setting ``name`` is read only after the last step (``extrapolation.*``): a run
+    resumed with new values of those keeps its training and is calibrated again."""
+    return name.startswith("extrapolation.")
+
+
+def training_changes(changed: list[str]) -> list[str]:
+    """Of the ``changed`` settings, those that training reads (a finished run cannot keep them)."""
+    return [name for name in changed if not is_after_training(name)]
+
+
+def changed_settings(saved: dict, cfg: TrainConfig) -> list[str]:
+    """Dotted names of the settings in which a run's saved config differs from ``cfg`` (the resumable
+    ones excepted): empty when the run can go on, or be reused, with ``cfg``. Settings added since the
+    run was saved read as their defaults; one this code no longer knows raises ValueError."""
+    if saved:
+        saved = config_to_dict(config_from_dict(TrainConfig, migrate_config(saved)))
+    return _changed(saved, config_to_dict(cfg))
+
+
+def _changed(saved: dict, current: dict, prefix: str = "") -> list[str]:
+    changed = []
+    for key in sorted(set(saved) | set(current)):
+        name = prefix + key
+        a, b = saved.get(key), current.get(key)
+        if isinstance(a, dict) and isinstance(b, dict):
+            changed += _changed(a, b, name + ".")
+        elif a != b and name not in RESUMABLE_CHANGES:
+            changed.append(name)
+    return changed

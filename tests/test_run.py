@@ -1,0 +1,106 @@
+"""The run folder (``tracegs.run``): safe loading, no side effects, and run folders of earlier versions."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+
+from tests.conftest import write_tiny_scene
+from tracegs.config import make_config
+from tracegs.export.render import render_command
+from tracegs.run import (
+    CHECKPOINT,
+    EXTRAPOLATION,
+    RunError,
+    calibrate_run,
+    load_config,
+    load_run,
+    load_tensors,
+)
+from tracegs.run_compat import migrate_config
+from tracegs.train.trainer import Trainer
+
+FIXTURE = Path(__file__).parent / "fixtures" / "run_1668a0e"
+
+
+class _Payload:
+    """Unpickling this runs ``os.system``: what a malicious checkpoint would do."""
+
+    def __init__(self, marker: Path):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (os.system, (f"touch {self.marker}",))
+
+
+def test_a_planted_pickle_in_a_checkpoint_is_refused_without_running_it(tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(FIXTURE, run)
+    marker = tmp_path / "executed"
+    ckpt = torch.load(run / CHECKPOINT, weights_only=True)
+    ckpt["extra"] = _Payload(marker)
+    torch.save(ckpt, run / CHECKPOINT)
+    with pytest.raises(RunError, match="refused") as err:
+        load_run(run, device="cpu")
+    assert str(run / CHECKPOINT) in str(err.value)
+    assert not marker.exists()
+
+
+def test_a_run_folder_written_before_the_run_module_still_renders(tmp_path):
+    scene = write_tiny_scene(tmp_path / "scene")
+    run = tmp_path / "run"
+    shutil.copytree(FIXTURE, run)
+    cfg = load_config(run / "config.json")
+    old = json.loads((FIXTURE / "config.json").read_text())["dynamic"]
+    assert cfg.stage2.dt_frames == old["dt_frames"] and cfg.stage2.skip_static == (old["skip_static"] > 0)
+    assert cfg.extrapolation.handover_frames == old["handover_frames"]
+    assert cfg.extrapolation.free_bodies == old["free_bodies"]
+    loaded = load_run(run, device="cpu")
+    old_ckpt = torch.load(FIXTURE / CHECKPOINT, weights_only=True)
+    assert loaded.state.freeze_threshold == old_ckpt["freeze_threshold"]
+    assert torch.equal(loaded.state.unseen, old_ckpt["unseen_mask"])
+    image = render_command(run, tmp_path / "t1.png", time=1.2, camera="test:0", data=scene, device="cpu")
+    assert image.is_file()
+
+
+def test_a_run_without_its_post_training_state_names_the_command_that_makes_it(tmp_path):
+    scene = write_tiny_scene(tmp_path / "scene")
+    run = tmp_path / "run"
+    shutil.copytree(FIXTURE, run)
+    ckpt = torch.load(run / CHECKPOINT, weights_only=True)
+    del ckpt["unseen_mask"]  # as a checkpoint written before training ended
+    torch.save(ckpt, run / CHECKPOINT)
+    with pytest.raises(RunError, match=f"tracegs calibrate --run {run}"):
+        load_run(run, device="cpu")
+    state = calibrate_run(run, device="cpu", data=scene)
+    assert (run / EXTRAPOLATION).is_file()
+    reloaded = load_run(run, device="cpu").state
+    assert reloaded.freeze_threshold == state.freeze_threshold
+    assert torch.equal(reloaded.unseen, state.unseen)
+
+
+def test_loading_a_run_writes_nothing_and_gives_the_state_training_chose(tmp_path):
+    scene = write_tiny_scene(tmp_path / "scene")
+    cfg = make_config("tiny", data=scene, run=tmp_path / "run", device="cpu")
+    trainer = Trainer(cfg, progress=False)
+    trainer.train()
+    before = {p.name: p.stat().st_mtime_ns for p in cfg.run.iterdir()}
+    loaded = load_run(cfg.run, device="cpu")
+    assert {p.name: p.stat().st_mtime_ns for p in cfg.run.iterdir()} == before
+    chosen = trainer.extrapolation
+    assert loaded.state.freeze_threshold == chosen.freeze_threshold
+    assert torch.equal(loaded.state.unseen, chosen.unseen)
+    assert (loaded.state.free_bodies is None) == (chosen.free_bodies is None)
+    assert set(load_tensors(cfg.run / CHECKPOINT)) >= {"model", "step", "t_max", "static_mask"}
+
+
+def test_an_old_config_with_a_removed_setting_in_use_is_refused_by_name():
+    data = json.loads((FIXTURE / "config.json").read_text())
+    data["dynamic"]["rotation_consistency"] = 0.5
+    with pytest.raises(ValueError, match="rotation_consistency"):
+        migrate_config(data)
