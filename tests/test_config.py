@@ -2,13 +2,14 @@
 
 import pytest
 
-from tracegs.config import PRESETS, TrainConfig, load_config, make_config, save_config
+from tracegs.config import PRESETS, TrainConfig, make_config
+from tracegs.run import load_config, save_config
 
 
 @pytest.mark.parametrize("preset", sorted(PRESETS))
 def test_config_round_trip(tmp_path, preset):
     cfg = make_config(preset, method="defgs")
-    cfg.dynamic.dt_frames = 3.0
+    cfg.stage2.dt_frames = 3.0
     cfg.deformation.kind = "hexplane"
     save_config(cfg, tmp_path / "config.json")
     assert load_config(tmp_path / "config.json") == cfg

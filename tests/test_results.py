@@ -12,7 +12,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 def _record(benchmark="methods", **kw):
     rows = kw.pop("rows", [{"scene": "fan", "variant": "TRACE", "extrap_psnr": 30.6845, "lpips": 0.01234}])
-    record = results.make_record(benchmark, rows, kw.pop("command", "tracegs bench methods --scenes fan"), **kw)
+    record = results.make_record(
+        benchmark, rows, kw.pop("command", "tracegs bench methods --scenes fan"), **kw
+    )
     return record
 
 
@@ -45,7 +47,9 @@ def test_page_of_two_records(tmp_path):
     a = _record(title="Methods on the synthetic scenes")
     a["commit"], a["date"] = "abc1234", "2026-11-27"
     b = _record(
-        "raster", title="Rasteriser speed", command="tracegs bench raster --json r.json",
+        "raster",
+        title="Rasteriser speed",
+        command="tracegs bench raster --json r.json",
         rows=[{"backend": "native", "ms": 2.8321, "peak_mb": None, "n": 5000}],
     )
     results.write_record(tmp_path / "b-raster.json", b)
@@ -56,7 +60,10 @@ def test_page_of_two_records(tmp_path):
     assert "```\ntracegs bench methods --scenes fan\n```" in page
     assert "```\ntracegs bench raster --json r.json\n```" in page
     assert f"{a['machine']} · 2026-11-27 · abc1234" in page
-    assert "| scene | variant | extrap_psnr | lpips |\n|---|---|---|---|\n| fan | TRACE | 30.68 | 0.0123 |" in page
+    assert (
+        "| scene | variant | extrap_psnr | lpips |\n|---|---|---|---|\n| fan | TRACE | 30.68 | 0.0123 |"
+        in page
+    )
     assert "| native | 2.83 | – | 5000 |" in page
     assert page == results.render_results_page(tmp_path)  # deterministic
 

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from tracegs.data.blender import DatasetError, load_image, load_rgba, load_scene
 from tracegs.data.cameras import focus_point, look_at_viewmat, opengl_c2w_to_viewmat
+from tracegs.data.scene import DatasetError, load_image, load_rgba, load_scene
 
 
 def test_parses_tiny_scene(tiny_scene):

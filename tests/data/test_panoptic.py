@@ -8,7 +8,7 @@ import pytest
 import torch
 from tests.conftest import write_tiny_scene
 
-from tracegs.data.blender import DatasetError, available_splits, load_rgba, load_scene
+from tracegs.data.scene import DatasetError, available_splits, load_rgba, load_scene
 from tracegs.eval.protocol import split_frames
 
 

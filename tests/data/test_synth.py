@@ -365,7 +365,7 @@ def test_primitive_meshes_are_closed_and_outward(mesh):
 
 
 def test_parser_reads_the_folder(fan_dir):
-    blender = pytest.importorskip("tracegs.data.blender")
+    blender = pytest.importorskip("tracegs.data.scene")
     for split in SPLITS:
         scene = blender.load_scene(fan_dir, split)
         data = json.loads((fan_dir / f"transforms_{split}.json").read_text())

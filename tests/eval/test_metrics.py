@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from tracegs.eval.metrics import compare_images, load_image, mae_psnr, mse, psnr, ssim
+from tracegs.eval.metrics import compare_images
+from tracegs.image_metrics import load_image, mae_psnr, mse, psnr, ssim
 
 
 def _random_pair(*batch: int, h: int = 32, w: int = 40, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:

@@ -5,7 +5,8 @@ import pytest
 import torch
 from plyfile import PlyData, PlyElement
 
-from tracegs.export.ply import read_points, write_gaussians
+from tracegs.data.points import read_points
+from tracegs.export.ply import write_gaussians
 from tracegs.models.gaussians import create_gaussians
 
 

@@ -1,4 +1,4 @@
-"""``dynamic.stay_on_surface``: after the handover, a moving Gaussian amid still ones (it draws something
+"""``extrapolation.hold_surface``: after the handover, a moving Gaussian amid still ones (it draws something
 across a still surface, a shadow) is stopped where its path would leave that surface; while on it, and
 a body's Gaussians always, the physics carries them on."""
 
@@ -7,6 +7,7 @@ import torch
 from tests.conftest import randomised_model
 
 from tracegs.config import make_config
+from tracegs.extrapolate import ExtrapolationState, gaussians_at, handover_time
 from tracegs.physics.integrate import DynamicsParams, num_substeps
 
 T_MAX = 0.75
@@ -35,15 +36,19 @@ def _scene():
 
 
 def _controlled_model(fraction: float):
+    """The model of ``_scene`` with ``extrapolation.surface_still_fraction = fraction`` (0: ``hold_surface``
+    off), and its post-training state."""
     torch.manual_seed(0)
     points, defo, phys, n_plane = _scene()
     cfg = make_config("tiny", device="cpu", bf16=False)
-    cfg.dynamic.stay_on_surface = fraction
-    cfg.dynamic.hold_unseen = 0.0
+    cfg.extrapolation.hold_surface = fraction > 0
+    if fraction > 0:
+        cfg.extrapolation.surface_still_fraction = fraction
+    cfg.extrapolation.hold_unseen = False
     model = randomised_model(cfg, n=len(points))
     with torch.no_grad():
         model.gaussians["means"].copy_(points)  # the canonical state is t = 0
-    model.freeze_threshold = 0.01  # the plane never moves: frozen
+    state = ExtrapolationState(t_max=T_MAX, freeze_threshold=0.01)  # the plane never moves: frozen
 
     def deform(t):
         g = model.gaussians
@@ -54,7 +59,7 @@ def _controlled_model(fraction: float):
         return DynamicsParams(phys.clone(), zero, zero, zero)
 
     model.deform, model.query_dynamics = deform, query_dynamics
-    return model, points[:n_plane], phys
+    return model, state, points[:n_plane], phys
 
 
 def _distance(point, plane):
@@ -63,11 +68,11 @@ def _distance(point, plane):
 
 @pytest.mark.parametrize("t", [1.2, 2.0])
 def test_a_painter_stops_where_it_would_leave_its_surface(t):
-    model, plane, phys = _controlled_model(0.75)
-    t0 = model.handover_time(T_MAX)
+    model, state, plane, phys = _controlled_model(0.75)
+    t0 = handover_time(model, T_MAX)
     start = model.deform(t0)["means"]
     with torch.no_grad():
-        means = model.state_at(t, T_MAX)["means"]
+        means = gaussians_at(model, state, t)["means"]
     n = len(plane)
     torch.testing.assert_close(means[:n], start[:n], rtol=0, atol=0)  # the plane, frozen
     carried = start + (t - t0) * phys
@@ -85,27 +90,27 @@ def test_a_painter_stops_where_it_would_leave_its_surface(t):
 
 
 def test_the_stop_is_the_same_for_every_later_time():
-    model, plane, _ = _controlled_model(0.75)
+    model, state, plane, _ = _controlled_model(0.75)
     with torch.no_grad():
-        late = [model.state_at(t, T_MAX)["means"][-2] for t in (1.5, 2.5)]
+        late = [gaussians_at(model, state, t)["means"][-2] for t in (1.5, 2.5)]
     torch.testing.assert_close(late[0], late[1], rtol=0, atol=1e-5)
 
 
 def test_off_the_physics_carries_every_painter():
-    model, plane, phys = _controlled_model(0.0)
-    t0 = model.handover_time(T_MAX)
+    model, state, plane, phys = _controlled_model(0.0)
+    t0 = handover_time(model, T_MAX)
     start = model.deform(t0)["means"]
     with torch.no_grad():
-        means = model.state_at(1.2, T_MAX)["means"]
+        means = gaussians_at(model, state, 1.2)["means"]
     n = len(plane)
     torch.testing.assert_close(means[n:], (start + (1.2 - t0) * phys)[n:], rtol=0, atol=1e-5)
 
 
 def test_without_still_gaussians_nothing_stops():
-    model, plane, phys = _controlled_model(0.5)
-    model.freeze_threshold = 0.0  # nobody frozen: the plane "moves" with zero velocity
-    t0 = model.handover_time(T_MAX)
+    model, state, plane, phys = _controlled_model(0.5)
+    state.freeze_threshold = 0.0  # nobody frozen: the plane "moves" with zero velocity
+    t0 = handover_time(model, T_MAX)
     start = model.deform(t0)["means"]
     with torch.no_grad():
-        means = model.state_at(1.2, T_MAX)["means"]
+        means = gaussians_at(model, state, 1.2)["means"]
     torch.testing.assert_close(means, start + (1.2 - t0) * phys, rtol=0, atol=1e-5)

@@ -1,4 +1,4 @@
-"""``dynamic.hold_unseen``: after the handover, the Gaussians that no training camera shows and that f_trd
+"""``extrapolation.hold_unseen``: after the handover, the Gaussians that no training camera shows and that f_trd
 moves much faster than f_defo did are kept where they are (f_trd was never shown them)."""
 
 import math
@@ -8,9 +8,11 @@ import torch
 from tests.conftest import randomised_model, write_tiny_scene
 
 from tracegs.config import make_config
+from tracegs.extrapolate import ExtrapolationState, gaussians_at, handover_time
+from tracegs.extrapolate.calibrate import unseen_gaussians
 from tracegs.physics.integrate import DynamicsParams
-from tracegs.train.calibrate import unseen_gaussians
-from tracegs.train.trainer import Trainer, load_run
+from tracegs.run import EXTRAPOLATION, load_extrapolation, load_run, load_tensors
+from tracegs.train.trainer import Trainer
 
 T_MAX = 0.75
 V = torch.tensor([0.4, -0.2, 0.1])
@@ -19,14 +21,18 @@ V = torch.tensor([0.4, -0.2, 0.1])
 def _controlled_model(hold: float, n: int = 30):
     """Three groups of ten Gaussians: shown by the cameras and moved by f_defo with V; unseen and kept
     still by f_defo (under a surface); unseen and moved by f_defo with V (inside a moving object).
-    f_trd gives every Gaussian V as its equivalent velocity, with no rotation or acceleration."""
+    f_trd gives every Gaussian V as its equivalent velocity, with no rotation or acceleration.
+    ``hold``: ``extrapolation.unseen_speed_ratio``, 0 = ``hold_unseen`` off. Returns the model, its
+    post-training state (the unseen Gaussians), their positions at the handover and their groups."""
     cfg = make_config("tiny", device="cpu", bf16=False)
-    cfg.dynamic.hold_unseen = hold
+    cfg.extrapolation.hold_unseen = hold > 0
+    if hold > 0:
+        cfg.extrapolation.unseen_speed_ratio = hold
     model = randomised_model(cfg, n=n)
     canonical = model.gaussians["means"].detach().clone()
     group = torch.arange(n) // (n // 3)
     velocity = torch.where((group == 1)[:, None], torch.zeros(3), V)
-    model.unseen_mask = group > 0
+    state = ExtrapolationState(t_max=T_MAX, unseen=group > 0)
 
     def deform(t):
         g = model.gaussians
@@ -37,16 +43,16 @@ def _controlled_model(hold: float, n: int = 30):
         return DynamicsParams(V.expand_as(means).clone(), zero, zero, zero)
 
     model.deform, model.query_dynamics = deform, query_dynamics
-    return model, canonical + model.handover_time(T_MAX) * velocity, group
+    return model, state, canonical + handover_time(model, T_MAX) * velocity, group
 
 
 @pytest.mark.parametrize("hold", [3.0, 0.0])
 def test_only_unseen_gaussians_the_fields_disagree_on_are_held(hold):
-    model, handover, group = _controlled_model(hold)
+    model, state, handover, group = _controlled_model(hold)
     t = 1.3
     with torch.no_grad():
-        means = model.state_at(t, T_MAX)["means"]
-    carried = handover + (t - model.handover_time(T_MAX)) * V  # x(t0) + V (t - t0)
+        means = gaussians_at(model, state, t)["means"]
+    carried = handover + (t - handover_time(model, T_MAX)) * V  # x(t0) + V (t - t0)
     held = (group == 1) if hold > 0 else torch.zeros_like(group, dtype=torch.bool)
     torch.testing.assert_close(means[~held], carried[~held], rtol=0, atol=1e-5)
     torch.testing.assert_close(means[held], handover[held], rtol=0, atol=0)
@@ -55,14 +61,16 @@ def test_only_unseen_gaussians_the_fields_disagree_on_are_held(hold):
 def test_a_slow_unseen_drift_within_the_floor_moves_on():
     """f_trd's speed below 3 x the floor (0.05 scene units per unit of time) is not held, even where
     f_defo kept the Gaussian still."""
-    model, handover, group = _controlled_model(3.0)
+    model, state, handover, group = _controlled_model(3.0)
     slow = torch.tensor([0.1, 0.0, 0.0])
     model.query_dynamics = lambda means, t: DynamicsParams(
         slow.expand_as(means).clone(), *(torch.zeros_like(means) for _ in range(3))
     )
     with torch.no_grad():
-        means = model.state_at(1.0, T_MAX)["means"]
-    torch.testing.assert_close(means, handover + (1.0 - model.handover_time(T_MAX)) * slow, rtol=0, atol=1e-5)
+        means = gaussians_at(model, state, 1.0)["means"]
+    torch.testing.assert_close(
+        means, handover + (1.0 - handover_time(model, T_MAX)) * slow, rtol=0, atol=1e-5
+    )
 
 
 def test_unseen_gaussians_are_those_no_training_image_shows(tmp_path):
@@ -85,13 +93,14 @@ def test_unseen_gaussians_are_those_no_training_image_shows(tmp_path):
     assert (~unseen[kind == 0]).float().mean() > 0.2
 
 
-def test_the_unseen_mask_is_found_after_training_and_kept_in_the_checkpoint(tmp_path):
+def test_the_unseen_mask_is_found_after_training_and_kept_in_the_run_folder(tmp_path):
     scene = write_tiny_scene(tmp_path / "scene", n_times=5, size=24)
     cfg = make_config("tiny", data=scene, run=tmp_path / "run", device="cpu", init_points=200)
     trainer = Trainer(cfg, progress=False)
     trainer.train()
-    mask = trainer.model.unseen_mask
+    mask = trainer.extrapolation.unseen
     assert mask is not None and mask.shape == (trainer.model.gaussians["means"].shape[0],)
-    ckpt = torch.load(tmp_path / "run" / "checkpoint.pt", map_location="cpu", weights_only=False)
-    assert torch.equal(ckpt["unseen_mask"], mask)
-    assert torch.equal(load_run(tmp_path / "run", device="cpu")[0].unseen_mask, mask)
+    saved = load_tensors(tmp_path / "run" / EXTRAPOLATION)
+    assert torch.equal(saved["unseen"], mask)
+    assert torch.equal(load_extrapolation(tmp_path / "run").unseen, mask)
+    assert torch.equal(load_run(tmp_path / "run", device="cpu").state.unseen, mask)

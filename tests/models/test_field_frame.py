@@ -12,16 +12,18 @@ from tests.conftest import randomised_model, write_tiny_scene
 
 from tracegs.config import apply_overrides, make_config
 from tracegs.data.dataset import ViewDataset
+from tracegs.extrapolate import ExtrapolationState, gaussians_at
 from tracegs.models.trace import TraceModel
+from tracegs.run import load_run
 from tracegs.train.scene_frame import field_frame
-from tracegs.train.trainer import Trainer, load_run
+from tracegs.train.trainer import Trainer
 
 CENTER, SCALE = torch.tensor([50.0, -20.0, 3.0]), 8.0
 VARIANTS = {
     "trace": {},
-    "trace_4dgs": {"deformation__kind": "hexplane"},
-    "order 3": {"dynamics__order": 3},
-    "no equivalence": {"dynamics__equivalent": False},
+    "trace_4dgs": {"deformation.kind": "hexplane"},
+    "order 3": {"dynamics.order": 3},
+    "no equivalence": {"dynamics.equivalent": False},
     "defgs": {"method": "defgs"},
 }
 
@@ -43,10 +45,11 @@ def test_a_moved_and_scaled_scene_moves_the_same(switch):
     moved = _moved_copy(model)
     for m in (model, moved):
         m.begin_dynamic_stage()  # the HexPlane boxes the canonical Gaussians (in the fields' frame)
+    state = ExtrapolationState(t_max=0.75)
     with torch.no_grad():
         pairs = {
-            "f_defo": (model.state_at(0.3, 0.75), moved.state_at(0.3, 0.75)),
-            "extrapolated": (model.state_at(1.4, 0.75), moved.state_at(1.4, 0.75)),
+            "f_defo": (gaussians_at(model, state, 0.3), gaussians_at(moved, state, 0.3)),
+            "extrapolated": (gaussians_at(model, state, 1.4), gaussians_at(moved, state, 1.4)),
             "training": (model.training_state(0.4, 0.45)[0], moved.training_state(0.4, 0.45)[0]),
         }
     for name, (a, b) in pairs.items():
@@ -92,15 +95,16 @@ def test_a_run_keeps_its_frame_and_older_checkpoints_load_in_the_world_frame(tmp
     cfg = make_config("tiny", data=scene, run=tmp_path / "run", device="cpu", init_points=200)
     trainer = Trainer(cfg, progress=False)
     trainer.train()
-    model, _, meta = load_run(tmp_path / "run", device="cpu")
+    loaded = load_run(tmp_path / "run", device="cpu")
+    model = loaded.model
     torch.testing.assert_close(model.field_center, trainer.model.field_center)
     assert float(model.field_scale) == float(trainer.model.field_scale) > 1
-    assert torch.isfinite(model.state_at(1.3, meta["t_max"])["means"]).all()
+    assert torch.isfinite(gaussians_at(model, loaded.state, 1.3)["means"]).all()
     ckpt = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)
     for key in ("field_center", "field_scale"):  # as written before the fields had a frame
         del ckpt["model"][key]
     torch.save(ckpt, tmp_path / "run" / "checkpoint.pt")
-    model, _, _ = load_run(tmp_path / "run", device="cpu")
+    model = load_run(tmp_path / "run", device="cpu").model
     assert float(model.field_scale) == 1.0 and (model.field_center == 0).all()
     assert (
         model.fields_see_world and model.to_field_frame(model.gaussians["means"]) is model.gaussians["means"]

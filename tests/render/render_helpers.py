@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from tracegs.render import rasterize
-from tracegs.render.bench import random_scene
+from tracegs.render.random_scene import random_scene
 
 PARAMS = ("means", "quats", "scales", "opacities", "colors")
 

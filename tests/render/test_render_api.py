@@ -7,7 +7,7 @@ import torch
 from render_helpers import PARAMS, hard_scene, native_available, rel_err, render_with_grads
 
 from tracegs.render import RenderResult, available_backends, rasterize
-from tracegs.render.bench import random_scene
+from tracegs.render.random_scene import random_scene
 
 
 @pytest.mark.parametrize("backend", ["reference", "native"])

@@ -9,7 +9,7 @@ import torch
 from render_helpers import native_available
 
 from tracegs.render import rasterize, sh_basis
-from tracegs.render.bench import random_scene
+from tracegs.render.random_scene import random_scene
 from tracegs.render.sh import SH_C0, eval_sh_colors
 
 
