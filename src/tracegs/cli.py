@@ -185,9 +185,8 @@ def train_config(argv: list[str]) -> TrainConfig:
     from .config import PRESETS
 
     choice, _ = tyro.cli(_PresetChoice, args=argv, return_unknown_args=True, add_help=False)
-    cfg = tyro.cli(
-        type(PRESETS[choice.preset]()), default=PRESETS[choice.preset](), args=argv, prog="tracegs train"
-    )
+    default = PRESETS[choice.preset]()
+    cfg = tyro.cli(type(default), default=default, args=argv, prog="tracegs train")
     cfg.preset = choice.preset
     return cfg
 

@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 from .config import TrainConfig, config_from_dict, config_to_dict, cpu_has_amx_bf16
-from .extrapolate import ExtrapolationState
+from .extrapolate import ExtrapolationState, has_policy
 from .models.gaussians import empty_like_params
 from .models.trace import TraceModel
 from .run_compat import migrate_config
@@ -112,22 +112,32 @@ class Run:
     config: TrainConfig
     state: ExtrapolationState
     meta: dict
-    """``step``, ``train_seconds``, ``t_max``, ``freeze_threshold``."""
+    """``step``, ``train_seconds``, ``t_max``."""
 
 
-def build_model(cfg: TrainConfig, model_state: dict, device: torch.device) -> TraceModel:
-    """The model of a checkpoint's ``model`` state dict, in eval mode on ``device``."""
-    gaussians = empty_like_params(
+def gaussians_of(model_state: dict):
+    """Empty Gaussian parameters shaped as those of a checkpoint's ``model`` state dict (the number of
+    Gaussians changes in training), for ``load_state_dict`` to fill."""
+    return empty_like_params(
         {k.split(".", 1)[1]: v for k, v in model_state.items() if k.startswith("gaussians.")}
     )
-    model = TraceModel(cfg, gaussians, model_state["aabb"], float(model_state["frame_interval"])).to(device)
-    model.load_state_dict(model_state)
-    return model.eval()
 
 
-def needs_calibration(model: TraceModel) -> bool:
-    """Whether the model has an extrapolation state to choose: TRACE with both fields."""
-    return model.dynamics is not None and model.deformation is not None
+def _trained_model(cfg: TrainConfig, run: Path, device: str) -> tuple[TraceModel, dict]:
+    """The model of ``run``'s checkpoint (in eval mode) and the checkpoint."""
+    path = run / CHECKPOINT
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no checkpoint (has `tracegs train --run {run}` finished a step?)")
+    dev = resolve_device(device)
+    ckpt = load_tensors(path, dev)
+    state = ckpt["model"]
+    model = TraceModel(cfg, gaussians_of(state), state["aabb"], float(state["frame_interval"])).to(dev)
+    model.load_state_dict(state)
+    # A run trained where bf16 paid (a CPU with AMX, as `cpu-fast` chooses) is rendered in fp32 on
+    # CPUs without AMX: there bf16 is slower, and fp32 gives the fields' values exactly.
+    model.bf16 = cfg.bf16 and cpu_has_amx_bf16()
+    model.set_static_mask(ckpt.get("static_mask"))
+    return model.eval(), ckpt
 
 
 def load_run(run: str | Path, device: str = "auto") -> Run:
@@ -135,35 +145,22 @@ def load_run(run: str | Path, device: str = "auto") -> Run:
     without its post-training state raises RunError with the command that makes it."""
     run = Path(run)
     cfg = load_config(run / CONFIG)
-    path = run / CHECKPOINT
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no checkpoint (has `tracegs train --run {run}` finished a step?)")
-    dev = resolve_device(device)
-    ckpt = load_tensors(path, dev)
-    model = build_model(cfg, ckpt["model"], dev)
-    # A run trained where bf16 paid (a CPU with AMX, as `cpu-fast` chooses) is rendered in fp32 on
-    # CPUs without AMX: there bf16 is slower, and fp32 gives the fields' values exactly.
-    model.bf16 = cfg.bf16 and cpu_has_amx_bf16()
-    model.set_static_mask(ckpt.get("static_mask"))
+    model, ckpt = _trained_model(cfg, run, device)
+    dev = model.aabb.device
     state = load_extrapolation(run, dev)
     if state is None:
         from .run_compat import state_from_old_checkpoint
 
         state = state_from_old_checkpoint(ckpt, dev)
     if state is None:
-        if needs_calibration(model):
+        if has_policy(model):
             raise RunError(
                 f"{run}: no post-training state ({EXTRAPOLATION}): training did not finish, or an older "
                 f"tracegs wrote the run. Make it with `tracegs calibrate --run {run}` (it reads the "
                 "training images; a finished run takes a minute)."
             )
         state = ExtrapolationState(t_max=float(ckpt["t_max"]))
-    meta = {
-        "step": ckpt["step"],
-        "train_seconds": ckpt["train_seconds"],
-        "t_max": ckpt["t_max"],
-        "freeze_threshold": state.freeze_threshold,
-    }
+    meta = {"step": ckpt["step"], "train_seconds": ckpt["train_seconds"], "t_max": ckpt["t_max"]}
     return Run(run, model, cfg, state, meta)
 
 
@@ -185,11 +182,7 @@ def calibrate_run(
         cfg = apply_overrides(cfg, settings)
     if data is not None:
         cfg.data = Path(data)
-    dev = resolve_device(device)
-    ckpt = load_tensors(run / CHECKPOINT, dev)
-    model = build_model(cfg, ckpt["model"], dev)
-    model.bf16 = cfg.bf16 and cpu_has_amx_bf16()
-    model.set_static_mask(ckpt.get("static_mask"))
+    model, ckpt = _trained_model(cfg, run, device)
     state = calibrate(model, float(ckpt["t_max"]))
     save_extrapolation(run, state)
     save_config(cfg, run / CONFIG)

@@ -104,3 +104,23 @@ def test_the_unseen_mask_is_found_after_training_and_kept_in_the_run_folder(tmp_
     assert torch.equal(saved["unseen"], mask)
     assert torch.equal(load_extrapolation(tmp_path / "run").unseen, mask)
     assert torch.equal(load_run(tmp_path / "run", device="cpu").state.unseen, mask)
+
+
+def test_still_codes_say_why_each_gaussian_holds_still_the_first_reason_winning():
+    """Group 1 (unseen, still under f_defo) is held as UNSEEN; marking Gaussians static in training
+    overrides that reason for those rows, and the Gaussians that move keep MOVES."""
+    from tracegs.extrapolate.still import MOVES, STATIC, UNSEEN, still_codes
+
+    model, state, handover, group = _controlled_model(3.0)
+    t0 = handover_time(model, T_MAX)
+    params = model.query_dynamics(handover, t0)
+    codes = still_codes(model, state, t0, handover, params)
+    assert codes.dtype == torch.uint8
+    assert (codes[group == 1] == UNSEEN).all() and (codes[group != 1] == MOVES).all()
+    static = torch.zeros(len(group), dtype=torch.bool)
+    static[:5], static[10:12] = True, True  # shown ones and two of the unseen ones
+    model.set_static_mask(static)
+    codes = still_codes(model, state, t0, handover, params)
+    assert (codes[static] == STATIC).all()
+    assert (codes[(group == 1) & ~static] == UNSEEN).all()
+    assert (codes[(group != 1) & ~static] == MOVES).all()

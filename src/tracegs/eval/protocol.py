@@ -169,7 +169,7 @@ def evaluate_run(
         **({} if future_end is None else {"future_end": future_end}),
         train_seconds=meta["train_seconds"],
         iterations=meta["step"],
-        freeze_threshold=meta.get("freeze_threshold"),
+        freeze_threshold=state.freeze_threshold,
         gaussians=int(model.gaussians["means"].shape[0]),
     )
     return result

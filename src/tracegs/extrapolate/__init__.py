@@ -6,7 +6,7 @@ the run folder stores it (``run.py``). ``gaussians_at(model, state, t)`` turns a
 Gaussians at any time t. ``still_codes`` says which Gaussians hold still after the handover and why.
 """
 
-from .calibrate import calibrate
+from .calibrate import calibrate, has_policy
 from .future import gaussians_at, handover_time, physics_from
 from .state import ExtrapolationState
 from .still import REASONS, still_codes
@@ -17,6 +17,7 @@ __all__ = [
     "calibrate",
     "gaussians_at",
     "handover_time",
+    "has_policy",
     "physics_from",
     "still_codes",
 ]

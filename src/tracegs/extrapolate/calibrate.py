@@ -122,6 +122,12 @@ def choose_freeze_threshold(
     return best, scores
 
 
+def has_policy(model) -> bool:
+    """Whether the model has an extrapolation state to choose: TRACE with both fields (DefGS, static
+    3DGS and the ablation "no f_defo" extrapolate without one)."""
+    return model.dynamics is not None and model.deformation is not None
+
+
 def calibrate(model, t_max: float, extent: float | None = None) -> ExtrapolationState:
     """The extrapolation state of a trained ``model`` whose training span ends at ``t_max``: the
     Gaussians no camera sees before the handover, the freeze threshold, then the free bodies, as the
@@ -131,8 +137,7 @@ def calibrate(model, t_max: float, extent: float | None = None) -> Extrapolation
 
     cfg, settings = model.cfg, model.cfg.extrapolation
     state = ExtrapolationState(t_max=t_max)
-    both_fields = model.dynamics is not None and model.deformation is not None
-    if not both_fields:  # DefGS, static 3DGS, "no f_defo": nothing to choose
+    if not has_policy(model):
         return state
     if settings.hold_unseen:
         state.unseen = unseen_gaussians(model, cfg.data, cfg.downscale, t_max)

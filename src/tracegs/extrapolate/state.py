@@ -6,7 +6,6 @@ N: Gaussians, K: free bodies.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import torch
@@ -47,7 +46,7 @@ class ExtrapolationState:
             "freeze_threshold": self.freeze_threshold,
             "unseen": self.unseen,
             "free_bodies": self.free_bodies,
-            "report": _plain(self.report),
+            "report": self.report,
         }
 
     @classmethod
@@ -70,14 +69,3 @@ class ExtrapolationState:
             free_bodies=bodies,
             report=data.get("report") or {},
         )
-
-
-def _plain(value):
-    """``value`` with non-finite floats as None, so that the report is valid JSON."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value

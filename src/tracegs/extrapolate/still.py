@@ -36,17 +36,8 @@ def still_codes(
     the first reason that applies in the order of the module's list. ``means`` [N, 3] and ``params``:
     f_defo's state at ``t0`` and f_trd's parameters there; ``moving`` [N] bool replaces the freeze
     threshold's choice (``FROZEN`` where false)."""
-    n = means.shape[0]
-    codes = torch.zeros(n, dtype=torch.uint8, device=means.device)
-    unseen_held = _unseen_held(model, state, t0, means, params)
-    if unseen_held is not None:
-        codes[unseen_held] = UNSEEN
-    frozen = ~moving if moving is not None else _frozen(model, state, t0)
-    if frozen is not None:
-        codes[frozen] = FROZEN
-    if model.static_mask is not None:
-        codes[model.static_mask] = STATIC
-    return codes
+    codes = _codes(*_rules(model, state, t0, means, params, moving), means)
+    return torch.zeros(means.shape[0], dtype=torch.uint8, device=means.device) if codes is None else codes
 
 
 def moving_after_handover(
@@ -54,13 +45,25 @@ def moving_after_handover(
 ) -> torch.Tensor | None:
     """[N] bool: the Gaussians the physics moves after ``t0`` (``still_codes == MOVES``); None when no
     rule holds any Gaussian still (every one moves)."""
-    rules = (
-        moving is not None
-        or model.static_mask is not None
-        or _frozen(model, state, t0) is not None
-        or _unseen_held(model, state, t0, means, params) is not None
-    )
-    return still_codes(model, state, t0, means, params, moving) == MOVES if rules else None
+    codes = _codes(*_rules(model, state, t0, means, params, moving), means)
+    return None if codes is None else codes == MOVES
+
+
+def _rules(model, state, t0, means, params, moving) -> tuple:
+    """The [N] bool masks (or None where a rule does not apply) of ``STATIC``, ``FROZEN``, ``UNSEEN``."""
+    frozen = ~moving if moving is not None else _frozen(model, state, t0)
+    return model.static_mask, frozen, _unseen_held(model, state, t0, means, params)
+
+
+def _codes(static, frozen, unseen, means: torch.Tensor) -> torch.Tensor | None:
+    """The codes of the masks, the earlier reason winning; None when no rule applies."""
+    if static is None and frozen is None and unseen is None:
+        return None
+    codes = torch.zeros(means.shape[0], dtype=torch.uint8, device=means.device)
+    for code, mask in ((UNSEEN, unseen), (FROZEN, frozen), (STATIC, static)):
+        if mask is not None:
+            codes[mask] = code
+    return codes
 
 
 def _frozen(model, state, t0: float) -> torch.Tensor | None:

@@ -176,7 +176,7 @@ class TraceModel(nn.Module):
 
     # ----- the Gaussians of a training step -----------------------------------------------------
     def training_state(
-        self, t_prime: float, t: float, physics: bool = True, t_check: float | None = None
+        self, t_prime: float, t: float, t_check: float | None = None
     ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
         """Gaussians for rendering frame ``t`` in stage 2 (METHOD.md, Training), and the step's
         weighted auxiliary losses by name (``acceleration``, when ``stage2.acceleration_consistency``
@@ -184,11 +184,11 @@ class TraceModel(nn.Module):
 
         TRACE: deform to t', query f_trd at (x_t', t'), integrate t' -> t, and pass f_defo(t')'s
         gradient straight through to the rendered position (the physics starts from a detached x_t').
-        DefGS (or ``physics=False``): f_defo(t) alone. ``t_check``: where the acceleration consistency
+        DefGS: f_defo(t) alone. ``t_check``: where the acceleration consistency
         reads f_trd's velocities again (default ``t``; ``Stage2Config.consistency_frames``).
         """
         stage = self.cfg.stage2
-        if self.dynamics is None or not physics:
+        if self.dynamics is None:
             return self.deform(t), {}
         if self.deformation is None:  # ablation "no f_defo": dynamics carry the canonical Gaussians from 0
             t_prime = 0.0

@@ -22,7 +22,7 @@ from ..data.cameras import scene_extent_from_cameras
 from ..data.dataset import ViewDataset, frame_interval
 from ..data.scene import load_scene
 from ..extrapolate import calibrate
-from ..models.gaussians import create_gaussians, empty_like_params, random_gaussians
+from ..models.gaussians import create_gaussians, random_gaussians
 from ..models.trace import TraceModel
 from ..render.rendering import resolve_backend
 from ..run import (
@@ -31,6 +31,7 @@ from ..run import (
     LOG,
     SUMMARY,
     changed_settings,
+    gaussians_of,
     load_extrapolation,
     load_tensors,
     save_config,
@@ -252,7 +253,7 @@ class Trainer:
         self.save()  # the last step (never saved in the loop) is kept if the calibration fails
         if self.extrapolation is None:  # (a finished run resumed with the same settings keeps its own)
             self.extrapolation = calibrate(self.model, self.t_max, self.extent)
-        save_extrapolation(self.run, self.extrapolation)
+            save_extrapolation(self.run, self.extrapolation)
         summary = self.summary()
         atomic_write_text(self.run / SUMMARY, json.dumps(summary, indent=2))
         return summary
@@ -322,8 +323,7 @@ class Trainer:
                 f"{path}: the checkpoint was trained with other settings ({', '.join(changed)}); "
                 "resume with the same settings, or train into a new --run folder"
             )
-        gauss_state = {k.split(".", 1)[1]: v for k, v in ckpt["model"].items() if k.startswith("gaussians.")}
-        self.model.gaussians = empty_like_params(gauss_state)
+        self.model.gaussians = gaussians_of(ckpt["model"])
         self.model.load_state_dict(ckpt["model"])
         self.optimizers = gaussian_optimizers(self.model.gaussians, self.cfg.optim, self.extent)
         for k, o in self.optimizers.items():
