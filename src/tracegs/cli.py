@@ -8,16 +8,18 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
 import tyro
 
+from .segment.config import SegmentConfig
+
 if TYPE_CHECKING:
     from .config import TrainConfig
 
-COMMANDS = ("demo", "synth", "train", "calibrate", "render", "eval", "metrics", "bench", "results")
+COMMANDS = ("demo", "synth", "train", "calibrate", "render", "eval", "segment", "metrics", "bench", "results")
 
 
 @dataclass
@@ -109,6 +111,34 @@ class Eval:
     """Compute LPIPS (VGG and AlexNet)."""
     save_images: bool = True
     """Write rendered test frames and side-by-side strips into RUN/eval/."""
+    device: str = "auto"
+
+
+@dataclass
+class Segment:
+    """Segment a trained run's Gaussians by their learned motion (K-means on the physics f_trd learned),
+    store the labels in the run folder, render the masks at any time (future included), and score them
+    where the scene has ground-truth masks (docs/SEGMENTATION.md)."""
+
+    run: Path
+    """Run folder written by `tracegs train`."""
+    k: int | None = None
+    """Number of segments, the static group counted."""
+    auto_k: bool = False
+    """Choose K without labels (the smallest K whose segments all move rigidly; see --help of settings)."""
+    data: Path | None = None
+    """Scene folder (default: the one the run was trained on)."""
+    time: float | None = None
+    """Time of the mask images and the coloured PLY (default: the last training time; t > 1 extrapolates)."""
+    json: Path | None = None
+    """Also write the report here (it always goes to OUT/segment.json)."""
+    out: Path | None = None
+    """Folder of the images, PLY, video and report (default: RUN/segment, RUN/segment-flow)."""
+    video: bool = False
+    """Also write OUT/sweep.mp4: an orbit while time runs 0 -> 1.5, the segments painted over it."""
+    score: bool = True
+    """Score against the scene's ground truth when it has some."""
+    settings: SegmentConfig = field(default_factory=SegmentConfig)
     device: str = "auto"
 
 
@@ -249,6 +279,15 @@ def main(argv: list[str] | None = None) -> None:
         result = evaluate_run(a.run, a.data, a.half_res, a.lpips, a.save_images, a.device)
         path = a.json or a.run / "eval.json"
         _dump(result, path, console=format_summary(result) + f"\nall numbers: {path}")
+    elif command == "segment":
+        from .segment.command import segment_run
+        from .segment.report import format_report
+
+        a = tyro.cli(Segment, args=rest, prog=prog)
+        report = segment_run(
+            a.run, a.data, a.k, a.auto_k, a.time, a.json, a.out, a.video, a.settings, a.score, a.device
+        )
+        print(format_report(report))
     elif command == "metrics":
         from .eval.metrics import compare_images
 

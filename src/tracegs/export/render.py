@@ -85,15 +85,29 @@ def render_command(
 
 def render_sweep_video(model, state, data, out: Path, t_end, frames, background, downscale=1) -> Path:
     """A video whose camera orbits once while time runs from 0 to ``t_end``."""
-    import imageio.v2 as imageio
+    return write_video(sweep(model, state, data, t_end, frames, background, downscale), out)
 
+
+def sweep(model, state, data, t_end: float, frames: int, background, downscale: int = 1, paint=None):
+    """The frames [H, W, 3] uint8 of a sweep: the camera orbits once while time runs from 0 to
+    ``t_end``; ``paint(image, t, camera)`` -> image, when given, draws on each rendered image."""
     cams = [f.camera for f in load_scene(data, "train", downscale).frames]
-    images = []
     for k in range(frames):
         t = t_end * k / max(frames - 1, 1)
         cam = orbit_camera(cams, 360.0 * k / frames).to(model.aabb.device)
-        img = render_at(model, state, t, cam, background)
-        images.append((img.cpu().numpy() * 255 + 0.5).astype(np.uint8))
+        img = render_at(model, state, t, cam, background).cpu().numpy()
+        if paint is not None:
+            img = paint(img, t, cam)
+        yield (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def write_video(images, out: Path) -> Path:
+    """Write the frames ``images`` (uint8 [H, W, 3]) as MP4 at 24 fps (GIF when ``out`` says so, or when
+    imageio finds no ffmpeg: then next to ``out``), atomically; returns the path written."""
+    import imageio.v2 as imageio
+
+    images = list(images)
+    out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.stem}.tmp{out.suffix}")
     try:

@@ -1,0 +1,228 @@
+"""Grouping Gaussians by their motion: K-means (scikit-learn) on the normalised, weighted feature
+groups, the static group apart, neighbour smoothing of the labels (scipy's cKDTree), and the choice
+of K without labels from rigid fits.
+
+Labels: 0 .. K-1, the static group first (when there is one), then the moving segments by size.
+N: Gaussians, S: times, F: feature columns.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from .config import SegmentConfig
+from .features import MotionFeatures, twist_design
+
+
+@dataclass
+class Segmentation:
+    """Labels of every Gaussian and how K was chosen."""
+
+    labels: np.ndarray
+    """[N] int64 in 0 .. k - 1."""
+    k: int
+    has_static: bool
+    """Whether label 0 is the static group."""
+    auto_k: list[dict] = field(default_factory=list)
+    """With ``--auto-k``: one entry per K tried, ``{"k", "rigid_residual"}`` (fraction of the extent)."""
+
+
+def feature_matrix(features: MotionFeatures, rows: np.ndarray, normalise: str) -> np.ndarray:
+    """[M, F] the weighted feature groups of the Gaussians ``rows``; with ``normalise="group"`` each group
+    is first scaled to unit RMS (about its mean) over these Gaussians, so a weight is a share of the
+    distance whatever the group's units."""
+    columns = []
+    for name, group in features.groups.items():
+        g = group[rows]
+        if normalise == "group":
+            spread = np.sqrt(((g - g.mean(0)) ** 2).sum(1).mean())
+            g = g / max(spread, 1e-12)
+        columns.append(features.weights[name] * g)
+    return np.concatenate(columns, axis=1)
+
+
+def kmeans(matrix: np.ndarray, k: int, seed: int) -> np.ndarray:
+    """[M] cluster of each row, K-means with 10 restarts (k >= number of rows: one row each)."""
+    from sklearn.cluster import KMeans
+
+    if k <= 1 or len(matrix) == 0:
+        return np.zeros(len(matrix), dtype=np.int64)
+    if k >= len(matrix):
+        return np.arange(len(matrix), dtype=np.int64)
+    return KMeans(n_clusters=k, n_init=10, random_state=seed).fit_predict(matrix).astype(np.int64)
+
+
+def smooth(labels: np.ndarray, positions: np.ndarray, neighbours: int, passes: int = 2) -> np.ndarray:
+    """Each label replaced by the most common label among the point and its ``neighbours`` nearest
+    points (``passes`` times): isolated mislabelled Gaussians join the part around them."""
+    from scipy.spatial import cKDTree
+
+    if neighbours <= 0 or len(labels) <= neighbours:
+        return labels
+    _, nn = cKDTree(positions).query(positions, neighbours + 1)
+    k = int(labels.max()) + 1
+    for _ in range(passes):
+        votes = np.zeros((len(labels), k))
+        np.add.at(votes, (np.repeat(np.arange(len(labels)), nn.shape[1]), labels[nn].ravel()), 1.0)
+        votes[np.arange(len(labels)), labels] += 0.5  # ties keep the label
+        labels = votes.argmax(1)
+    return labels
+
+
+def rigid_residual(
+    positions: np.ndarray, velocities: np.ndarray, labels: np.ndarray, weights: np.ndarray | None = None
+) -> float:
+    """How far the Gaussians' velocities are from one rigid motion per segment: for each segment the
+    twist (V, W) that best explains its velocities (u ~ V + W x (x - c), weighted least squares about
+    the weighted centre c), and the weighted mean length of the residuals over every Gaussian, divided
+    by the weighted mean speed (0: every segment moves rigidly; 1: as far off as the motion itself).
+    Means of lengths, not RMS: the few Gaussians K-means puts in a neighbouring part would dominate
+    an RMS.
+    positions, velocities [N, 3], labels [N], weights [N] (default 1)."""
+    w = np.ones(len(labels)) if weights is None else np.asarray(weights, dtype=np.float64)
+    speed = float((w * np.linalg.norm(velocities, axis=1)).sum())
+    if speed <= 0:
+        return 0.0
+    total = 0.0
+    for label in np.unique(labels):
+        rows = labels == label
+        x, u, wr = positions[rows], velocities[rows], w[rows]
+        c = (x * wr[:, None]).sum(0) / max(wr.sum(), 1e-12)
+        d = x - c
+        a = twist_design(torch.as_tensor(d)).numpy()  # u = V + W x d
+        sw = np.sqrt(wr)[:, None, None]
+        sol, *_ = np.linalg.lstsq((a * sw).reshape(-1, 6), (u * sw[..., 0]).reshape(-1), rcond=None)
+        total += float((wr * np.linalg.norm((a @ sol) - u, axis=1)).sum())
+    return total / speed
+
+
+def connected(
+    labels: np.ndarray, positions: np.ndarray, neighbours: int, min_share: float, keep: int | None = None
+) -> np.ndarray:
+    """A part is one piece: each moving segment's pieces (connected components of the graph joining every
+    Gaussian to its ``neighbours`` nearest of the same label) smaller than ``min_share`` of the segment
+    take the label most common among their other neighbours. K-means on motion alone can join a patch
+    of another part whose few, weakly seen Gaussians f_defo moved alike (a patch of a base disc turning
+    with the blades above it). The segment ``keep`` (the static group: every still object of the
+    scene, in as many pieces) is left as it is."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    if neighbours <= 0 or len(labels) <= neighbours:
+        return labels
+    _, nn = cKDTree(positions).query(positions, neighbours + 1)
+    i, j = np.repeat(np.arange(len(labels)), neighbours), nn[:, 1:].ravel()
+    same = labels[i] == labels[j]
+    graph = coo_matrix((np.ones(int(same.sum())), (i[same], j[same])), shape=(len(labels),) * 2)
+    _, piece = connected_components(graph, directed=False)
+    sizes = np.bincount(piece)
+    segment_size = np.bincount(labels)
+    out = labels.copy()
+    small = sizes[piece] < min_share * segment_size[labels]
+    if keep is not None:
+        small &= labels != keep
+    for p in np.unique(piece[small]):
+        rows = np.flatnonzero(piece == p)
+        around = labels[nn[rows, 1:]].ravel()
+        around = around[around != labels[rows[0]]]
+        if len(around):
+            out[rows] = np.bincount(around).argmax()
+    return out
+
+
+def extent(positions: np.ndarray) -> float:
+    """Diagonal of the box holding the middle 98% of the points on each axis (the scene's size)."""
+    lo, hi = np.percentile(positions, [1, 99], axis=0)
+    return float(max(np.linalg.norm(hi - lo), 1e-12))
+
+
+def segment(features: MotionFeatures, settings: SegmentConfig, k: int | None = None) -> Segmentation:
+    """Labels of every Gaussian: the static group, and K-means on the features of the others into
+    ``k`` segments in all (the static group counted), or with ``k=None`` the K of :func:`choose_k`."""
+    static = features.static
+    moving = np.flatnonzero(~static)
+    has_static = bool(static.any())
+    if k is None:
+        k, table = choose_k(features, settings)
+    else:
+        table = []
+    if k < 1:
+        raise ValueError(f"K must be at least 1, got {k}")
+    has_static = has_static and k > 1  # K = 1: one segment, the static Gaussians included
+    labels = _labels(features, settings, moving, k - int(has_static))
+    if has_static:
+        labels = np.where(static, -1, labels)
+    labels = _tidy(_ordered(labels), features, settings, has_static)
+    if has_static:  # label 0 is the static group: keep it first
+        labels = np.where(labels == 0, -1, labels)
+    has_static = bool((labels == -1).any())
+    labels = _ordered(labels)
+    return Segmentation(labels, int(labels.max()) + 1, has_static, table)
+
+
+def choose_k(features: MotionFeatures, settings: SegmentConfig) -> tuple[int, list[dict]]:
+    """K without labels, from how rigidly the segments move (``rigid_residual`` of the moving
+    Gaussians' velocities, weighted by opacity, after the smoothing and the one-piece rule): trying
+    K = 1 .. ``settings.k_max`` (the static group counted), the smallest K whose residual is under
+    ``settings.rigid_tolerance``, else the smallest K that no larger K (up to ``k_max``) cuts to
+    ``settings.rigid_gain`` of its residual. A merge of two parts with different motions leaves a residual of
+    the order of their relative speed; a part split in two gains little. Every K tried, with its
+    residual, is returned. (A rigid residual measures what a motion segment is, one rigid motion;
+    silhouette or BIC scores measure how compact clusters are in feature space, which the feature
+    weights change.)"""
+    static = features.static
+    moving = np.flatnonzero(~static)
+    has_static = bool(static.any())
+    table: list[dict] = []
+    first = 1 + int(has_static)
+    for k in range(first, max(settings.k_max, first) + 1):
+        labels = _labels(features, settings, moving, k - int(has_static))
+        if has_static:
+            labels = np.where(static, -1, labels)
+        labels = _tidy(_ordered(labels), features, settings, has_static)
+        rows = labels != 0 if has_static else np.ones(len(labels), dtype=bool)
+        residual = rigid_residual(
+            features.positions[rows], features.velocities[rows], labels[rows], features.opacity[rows]
+        )
+        table.append({"k": k, "rigid_residual": residual})
+        if residual <= settings.rigid_tolerance:
+            return k, table
+        if len(moving) <= k:
+            break
+    for i, row in enumerate(table):  # the first K that no larger K improves on by the gain
+        if all(
+            later["rigid_residual"] > settings.rigid_gain * row["rigid_residual"] for later in table[i + 1 :]
+        ):
+            return row["k"], table
+    return table[-1]["k"], table
+
+
+def _tidy(
+    labels: np.ndarray, features: MotionFeatures, settings: SegmentConfig, has_static: bool
+) -> np.ndarray:
+    """Smoothing, then the one-piece rule, on labels 0 .. K-1 (0 the static group when ``has_static``)."""
+    labels = smooth(labels, features.positions, settings.smooth_neighbours)
+    keep = 0 if has_static else None
+    return connected(labels, features.positions, settings.smooth_neighbours, settings.piece_share, keep)
+
+
+def _labels(features: MotionFeatures, settings: SegmentConfig, moving: np.ndarray, k: int) -> np.ndarray:
+    """[N] K-means label of the moving Gaussians into ``k`` clusters (0 elsewhere)."""
+    labels = np.zeros(len(features.static), dtype=np.int64)
+    if len(moving) and k >= 1:
+        matrix = feature_matrix(features, moving, settings.normalise)
+        labels[moving] = kmeans(matrix, k, settings.seed)
+    return labels
+
+
+def _ordered(labels: np.ndarray) -> np.ndarray:
+    """Labels renumbered 0 .. K-1: -1 (the static group) first, then the others by decreasing size."""
+    ids, counts = np.unique(labels, return_counts=True)
+    order = sorted(range(len(ids)), key=lambda i: (ids[i] != -1, -counts[i], ids[i]))
+    new = np.empty(len(ids), dtype=np.int64)
+    new[order] = np.arange(len(ids))
+    return new[np.searchsorted(ids, labels)]

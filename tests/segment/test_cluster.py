@@ -1,0 +1,157 @@
+"""Clustering recovers the parts of synthetic per-Gaussian parameters of known rigid motions, and the
+choice of K without labels finds their count."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from tracegs.segment.cluster import choose_k, connected, rigid_residual, segment, smooth
+from tracegs.segment.config import SegmentConfig
+from tracegs.segment.features import MotionFeatures, flow_groups, physics_groups
+
+
+def _rotation(axis, angle):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+# part: (centre of its points, angular velocity w, pivot on the axis, linear velocity)
+PARTS = [
+    ((0.0, 0.0, -0.6), (0, 0, 0), (0, 0, 0), (0, 0, 0)),  # static base
+    ((0.0, 0.0, 0.3), (0, 0, 2.0), (0, 0, 0), (0, 0, 0)),  # a blade turning about z through the origin
+    ((0.6, 0.0, 0.0), (0, -1.2, 0), (0.45, 0, 0), (0, 0, 0)),  # a lid on a hinge
+    ((-0.6, 0.3, 0.0), (0, 0, 0), (0, 0, 0), (0.4, 0.1, 0)),  # a carriage that slides
+    ((-0.3, -0.6, 0.2), (1.5, 0, 0), (-0.3, -0.6, 0.2), (0.2, 0, 0)),  # a wheel rolling along
+]
+
+
+def synthetic_parts(noise: float = 0.03, n: int = 300, t_max: float = 0.75, times: int = 8, seed: int = 0):
+    """MotionFeatures of Gaussians on the parts above, with f_trd-like parameters (v_bar = v - w x pivot,
+    w) and noise, and the exact trajectories; returns (features, true part of each Gaussian)."""
+    rng = np.random.default_rng(seed)
+    x_end, truth, v_bar, omega, traj, velocity = [], [], [], [], [], []
+    ts = np.linspace(0, t_max, times)
+    for p, (centre, w, pivot, v) in enumerate(PARTS):
+        rest = np.asarray(centre) + 0.12 * rng.standard_normal((n, 3))
+        w, pivot, v = map(np.asarray, (w, pivot, v))
+        speed = np.linalg.norm(w)
+        path = []
+        for t in ts:
+            r = _rotation(w, speed * t) if speed > 0 else np.eye(3)
+            path.append((rest - pivot) @ r.T + pivot + v * t)
+        path = np.stack(path)  # [S, n, 3]
+        traj.append(path)
+        x_end.append(path[-1])
+        truth.append(np.full(n, p))
+        vb = v - np.cross(w, pivot + v * t_max)  # the particle velocity is v_bar + w x x
+        v_bar.append(vb + noise * rng.standard_normal((n, 3)) * max(np.linalg.norm(vb), 0.3))
+        omega.append(w + noise * rng.standard_normal((n, 3)) * max(speed, 0.3))
+        velocity.append(vb + np.cross(w, path[-1]))
+    traj = np.concatenate(traj, axis=1)
+    truth = np.concatenate(truth)
+    static = truth == 0
+    settings = SegmentConfig()
+    groups, weights = physics_groups(
+        torch.tensor(np.concatenate(v_bar)),
+        torch.tensor(np.concatenate(omega)),
+        torch.tensor(static),
+        settings,
+    )
+    velocity = np.concatenate(velocity)
+    velocity = (
+        velocity + noise * rng.standard_normal(velocity.shape) * np.linalg.norm(velocity, axis=1)[:, None]
+    )
+    features = MotionFeatures(
+        {k: g.numpy() for k, g in groups.items()}, weights, traj[-1], static, traj, velocity,
+        np.ones(len(truth)), t_max, 0.003,
+    )  # fmt: skip
+    return features, truth
+
+
+def agreement(labels: np.ndarray, truth: np.ndarray) -> float:
+    """Share of the Gaussians in the segment matched one-to-one to their part (Hungarian)."""
+    from scipy.optimize import linear_sum_assignment
+
+    counts = np.zeros((labels.max() + 1, truth.max() + 1))
+    np.add.at(counts, (labels, truth), 1)
+    rows, cols = linear_sum_assignment(counts, maximize=True)
+    return counts[rows, cols].sum() / len(labels)
+
+
+def test_kmeans_on_the_physics_recovers_known_rigid_parts():
+    features, truth = synthetic_parts()
+    seg = segment(features, SegmentConfig(), k=len(PARTS))
+    assert seg.k == len(PARTS) and seg.has_static
+    assert agreement(seg.labels, truth) > 0.99
+    assert (seg.labels[truth == 0] == 0).all()  # the static group is label 0
+
+
+def test_auto_k_finds_the_number_of_parts():
+    features, truth = synthetic_parts()
+    k, table = choose_k(features, SegmentConfig())
+    assert k == len(PARTS)
+    tried = [row["k"] for row in table]
+    assert tried[0] == 2 and len(PARTS) in tried
+    residual = {row["k"]: row["rigid_residual"] for row in table}
+    assert residual[len(PARTS) - 1] > 4 * residual[len(PARTS)]  # one part short is not rigid
+    seg = segment(features, SegmentConfig(), k=None)
+    assert seg.k == len(PARTS) and agreement(seg.labels, truth) > 0.99
+
+
+def test_flow_features_split_a_turning_part():
+    """The paper's point: scene flow differs across one turning part (tip against hub), so K-means on it
+    splits the blade, where the physics features (equal over a rigid part) keep it whole."""
+    features, truth = synthetic_parts()
+    groups, weights = flow_groups(torch.tensor(features.trajectories))
+    flow = dataclasses.replace(features, groups={k: v.numpy() for k, v in groups.items()}, weights=weights)
+    assert agreement(segment(flow, SegmentConfig(smooth_neighbours=0), k=len(PARTS)).labels, truth) < 0.97
+    assert agreement(segment(features, SegmentConfig(smooth_neighbours=0), k=len(PARTS)).labels, truth) > 0.99
+
+
+def test_rigid_residual_is_zero_for_rigid_parts_and_not_for_merged_ones():
+    features, truth = synthetic_parts(noise=0.0)
+    x, u = features.positions, features.velocities
+    assert rigid_residual(x, u, truth) < 1e-9
+    assert rigid_residual(x, u, np.minimum(truth, 1)) > 0.1
+    assert rigid_residual(x, np.zeros_like(u), truth) == 0.0
+
+
+def test_a_stray_patch_joins_what_surrounds_it():
+    """A few Gaussians of the base that K-means put with the blades (their motion alike) take the
+    label around them; the static group, in many pieces, is left whole."""
+    rng = np.random.default_rng(2)
+    base = rng.random((400, 3)) * [1, 1, 0.1]
+    blades = rng.random((400, 3)) * [1, 1, 0.1] + [0, 0, 2]
+    far = rng.random((100, 3)) * 0.2 + [5, 5, 5]  # a still object apart from the base
+    points = np.concatenate([base, blades, far])
+    labels = np.repeat([0, 1, 0], [400, 400, 100])
+    patch = np.flatnonzero(np.linalg.norm(points - [0.5, 0.5, 0.05], axis=1) < 0.12)
+    stray = labels.copy()
+    stray[patch] = 1
+    assert 3 <= len(patch) < 100
+    assert (connected(stray, points, 8, 0.25, keep=0) == labels).all()
+    assert (connected(labels, points, 8, 0.25, keep=0) == labels).all()
+    assert (connected(stray, points, 8, 0.0, keep=0) == stray).all()
+
+
+def test_smoothing_relabels_isolated_points_only():
+    rng = np.random.default_rng(1)
+    points = np.concatenate([rng.random((200, 3)), rng.random((200, 3)) + [3, 0, 0]])
+    labels = np.repeat([0, 1], 200)
+    noisy = labels.copy()
+    noisy[[5, 250]] = [1, 0]
+    assert (smooth(noisy, points, 8) == labels).all()
+    assert (smooth(labels, points, 0) == labels).all()
+
+
+def test_k_one_is_one_segment_and_bad_k_is_refused():
+    features, _ = synthetic_parts()
+    seg = segment(features, SegmentConfig(), k=1)
+    assert seg.k == 1 and not seg.has_static and (seg.labels == 0).all()
+    with pytest.raises(ValueError, match="at least 1"):
+        segment(features, SegmentConfig(), k=0)
