@@ -138,6 +138,9 @@ class Segment:
     """Also write OUT/sweep.mp4: an orbit while time runs 0 -> 1.5, the segments painted over it."""
     score: bool = True
     """Score against the scene's ground truth when it has some."""
+    ignore_pixels: int = 0
+    """Leave ground-truth segments smaller than this many pixels out of the scores (OGC's
+    ignore_npoint_thresh; 0 scores every one)."""
     settings: SegmentConfig = field(default_factory=SegmentConfig)
     device: str = "auto"
 
@@ -285,7 +288,18 @@ def main(argv: list[str] | None = None) -> None:
 
         a = tyro.cli(Segment, args=rest, prog=prog)
         report = segment_run(
-            a.run, a.data, a.k, a.auto_k, a.time, a.json, a.out, a.video, a.settings, a.score, a.device
+            a.run,
+            a.data,
+            a.k,
+            a.auto_k,
+            a.time,
+            a.json,
+            a.out,
+            a.video,
+            a.settings,
+            a.score,
+            a.device,
+            a.ignore_pixels,
         )
         print(format_report(report))
     elif command == "metrics":

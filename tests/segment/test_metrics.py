@@ -86,3 +86,15 @@ def test_average_precision_edge_cases_and_iou_shapes():
     assert iou.shape == (3, 3) and list(rows) == [0, 1, 2] and np.allclose(np.diag(iou), 1.0)
     with pytest.raises(ValueError, match="pixels"):
         iou_matrix(TRUTH, TRUTH[:5])
+
+
+def test_ignoring_small_ground_truth_segments_as_ogc_does():
+    truth = image({1: 60, 2: 37, 3: 3})  # part 3 a sliver of 3 px
+    pred = np.where(truth == 3, 1, truth)  # painted as part 1: missed
+    strict = pool([match_image(truth, pred)]).as_dict()
+    assert strict["recall"] == pytest.approx(2 / 3)
+    lenient = pool([match_image(truth, pred, ignore_pixels=5)]).as_dict()
+    assert lenient["recall"] == pytest.approx(1.0) and lenient["precision"] == pytest.approx(1.0)
+    assert lenient["miou"] == pytest.approx(1.0)  # the sliver's pixels leave part 1's prediction
+    only_small = match_image(image({1: 98, 2: 2}), image({1: 98, 2: 2}), ignore_pixels=50)
+    assert only_small.n_truth == 1

@@ -49,10 +49,12 @@ def segment_run(
     settings: SegmentConfig | None = None,
     score: bool = True,
     device: str = "auto",
+    ignore_pixels: int = 0,
 ) -> dict:
     """Segment the run ``run`` into ``k`` segments (the static group counted) or, with ``auto_k``, the K
     of ``cluster.choose_k``; write the outputs (module docstring) and return the report that goes to
-    ``segment.json`` (and to ``json_path``)."""
+    ``segment.json`` (and to ``json_path``). ``ignore_pixels``: ground-truth segments smaller than
+    this are left out of the scores (OGC's rule; 0, the default, scores every one)."""
     settings = settings or SegmentConfig()
     if (k is None) == (not auto_k):
         raise ValueError("give K (--k K) or ask for --auto-k, not both" if k else "give --k K or --auto-k")

@@ -53,10 +53,16 @@ def iou_matrix(truth: np.ndarray, pred: np.ndarray) -> tuple[np.ndarray, np.ndar
     return inter / np.maximum(union, 1.0), t_ids, p_ids
 
 
-def match_image(truth: np.ndarray, pred: np.ndarray, confidence: np.ndarray | None = None) -> ImageMatch:
+def match_image(
+    truth: np.ndarray, pred: np.ndarray, confidence: np.ndarray | None = None, ignore_pixels: int = 0
+) -> ImageMatch:
     """Score the label image ``pred`` [H, W] against ``truth`` [H, W]; ``confidence`` [H, W] (e.g. the
     rendered weight of the winning label) ranks each predicted segment by its mean over the segment's
-    pixels (OGC's confidence); without it every segment has confidence 1."""
+    pixels (OGC's confidence); without it every segment has confidence 1.
+
+    ``ignore_pixels``: ground-truth segments of fewer pixels are left out, as OGC's
+    ``ignore_npoint_thresh`` does (a part seen edge-on as a sliver): a prediction lying mostly on them
+    is not counted, and their pixels leave every prediction's size."""
     iou, _, p_ids = iou_matrix(truth, pred)
     if confidence is None:
         conf = np.ones(len(p_ids))
@@ -64,9 +70,32 @@ def match_image(truth: np.ndarray, pred: np.ndarray, confidence: np.ndarray | No
         flat, labels = np.asarray(confidence, dtype=np.float64).ravel(), np.asarray(pred).ravel()
         index = np.searchsorted(p_ids, labels)
         conf = np.bincount(index, flat, len(p_ids)) / np.bincount(index, minlength=len(p_ids))
+    if ignore_pixels > 0:
+        iou, kept = _ignoring(truth, pred, ignore_pixels)
+        conf = conf[np.isin(p_ids, kept)]
+    if iou.shape[0] == 0:
+        return ImageMatch(np.zeros(iou.shape[1]), conf, 0, float("nan"))
     rows, cols = linear_sum_assignment(iou, maximize=True)
     miou = float(iou[rows, cols].sum() / iou.shape[0])
     return ImageMatch(iou.max(axis=0), conf, iou.shape[0], miou)
+
+
+def _ignoring(truth: np.ndarray, pred: np.ndarray, ignore_pixels: int) -> tuple[np.ndarray, np.ndarray]:
+    """The IoU matrix and predicted ids of ``match_image`` without the ground-truth segments smaller
+    than ``ignore_pixels`` (OGC's rule)."""
+    truth, pred = np.asarray(truth).ravel(), np.asarray(pred).ravel()
+    t_ids, t_index = np.unique(truth, return_inverse=True)
+    p_ids, p_index = np.unique(pred, return_inverse=True)
+    inter = np.zeros((len(t_ids), len(p_ids)))
+    np.add.at(inter, (t_index, p_index), 1.0)
+    t_size, p_size = inter.sum(1), inter.sum(0)
+    small = t_size < ignore_pixels
+    on_small = inter[small].sum(0)
+    valid = (p_size - on_small > 0) & ~(on_small > 0.5 * p_size)
+    inter = inter[~small][:, valid]
+    p_size = (p_size - on_small)[valid]
+    union = t_size[~small][:, None] + p_size[None, :] - inter
+    return inter / np.maximum(union, 1.0), p_ids[valid]
 
 
 def average_precision(matched: np.ndarray, confidence: np.ndarray, n_truth: int) -> float:
@@ -123,7 +152,7 @@ def pool(matches: list[ImageMatch]) -> Scores:
         f1,
         precision,
         recall,
-        float(np.mean(per_image)),
+        float(np.nanmean(per_image)) if not np.isnan(per_image).all() else float("nan"),
         len(matches),
         per_image,
     )

@@ -28,9 +28,11 @@ def foreground(label_image: np.ndarray, static_label: int | None) -> np.ndarray:
 
 @torch.no_grad()
 def score_segmentation(model, state, labels: torch.Tensor, k: int, has_static: bool, data: Path,
-                       downscale: int, truth: GroundTruth, splits: list[str] | None = None) -> dict:  # fmt: skip
+                       downscale: int, truth: GroundTruth, splits: list[str] | None = None,
+                       ignore_pixels: int = 0) -> dict:  # fmt: skip
     """``{"splits": {split: scores}, "training_times": scores, "future_times": scores, "per_time": [...]}``
-    where scores are ``metrics.Scores.as_dict()``; frames without a mask are skipped."""
+    where scores are ``metrics.Scores.as_dict()``; frames without a mask are skipped. ``ignore_pixels``:
+    ground-truth segments smaller than this are left out (``metrics.match_image``)."""
     matches: dict[tuple[str, float], list] = defaultdict(list)
     dev = model.aabb.device
     for split in splits or available_splits(data):
@@ -45,7 +47,7 @@ def score_segmentation(model, state, labels: torch.Tensor, k: int, has_static: b
                 gt = truth.read(frame)
                 if truth.layout == "foreground":
                     pred = foreground(pred, 0 if has_static else None)
-                matches[(split, t)].append(match_image(gt, pred, confidence))
+                matches[(split, t)].append(match_image(gt, pred, confidence, ignore_pixels))
     t_max = float(state.t_max)
     by_split, by_time_all = defaultdict(list), defaultdict(list)
     for (split, t), ms in matches.items():
