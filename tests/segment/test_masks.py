@@ -137,3 +137,13 @@ def test_overlay_and_colours():
     out = overlay(image, labels, palette)
     assert (out[0, 0] == 0).all() and (out[1, 1] > 0).any()  # background untouched
     assert np.allclose(colour_image(labels, palette)[0, 0], 1.0)
+
+
+def test_masks_of_a_downscaled_run_are_sampled_down(slider):
+    """A run trained with --downscale 2 reads the full-size masks by nearest sampling."""
+    truth = find_ground_truth(slider)
+    full = load_scene(slider, "train").frames[0]
+    half = load_scene(slider, "train", downscale=2).frames[0]
+    big, small = truth.read(full), truth.read(half)
+    assert small.shape == (full.height // 2, full.width // 2)
+    assert (small == big[1::2, 1::2]).all()
