@@ -19,7 +19,12 @@ from ..utils import atomic_write_image
 def render_at(model, state, t: float, camera: Camera, background: torch.Tensor) -> torch.Tensor:
     """Image [H, W, 3] of the scene at time ``t`` (extrapolated past the run's training span with its
     post-training ``state``) seen by ``camera``."""
-    gaussians = gaussians_at(model, state, t)
+    return render_gaussians(model, gaussians_at(model, state, t), camera, background)
+
+
+@torch.no_grad()
+def render_gaussians(model, gaussians: dict, camera: Camera, background: torch.Tensor) -> torch.Tensor:
+    """Image [H, W, 3] of the Gaussians whose geometry at some time is ``gaussians`` (``gaussians_at``)."""
     return model.render(gaussians, camera, model.cfg.sh_degree, background).image.clamp(0, 1)
 
 
@@ -90,14 +95,16 @@ def render_sweep_video(model, state, data, out: Path, t_end, frames, background,
 
 def sweep(model, state, data, t_end: float, frames: int, background, downscale: int = 1, paint=None):
     """The frames [H, W, 3] uint8 of a sweep: the camera orbits once while time runs from 0 to
-    ``t_end``; ``paint(image, t, camera)`` -> image, when given, draws on each rendered image."""
+    ``t_end``; ``paint(image, gaussians, camera)`` -> image, when given, draws on each rendered image
+    (``gaussians``: their geometry at that frame's time)."""
     cams = [f.camera for f in load_scene(data, "train", downscale).frames]
     for k in range(frames):
         t = t_end * k / max(frames - 1, 1)
         cam = orbit_camera(cams, 360.0 * k / frames).to(model.aabb.device)
-        img = render_at(model, state, t, cam, background).cpu().numpy()
+        gaussians = gaussians_at(model, state, t)
+        img = render_gaussians(model, gaussians, cam, background).cpu().numpy()
         if paint is not None:
-            img = paint(img, t, cam)
+            img = paint(img, gaussians, cam)
         yield (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 

@@ -27,7 +27,7 @@ class Segmentation:
     has_static: bool
     """Whether label 0 is the static group."""
     auto_k: list[dict] = field(default_factory=list)
-    """With ``--auto-k``: one entry per K tried, ``{"k", "rigid_residual"}`` (fraction of the extent)."""
+    """With ``--auto-k``: one entry per K tried, ``{"k", "rigid_residual"}`` (``rigid_residual``)."""
 
 
 def feature_matrix(features: MotionFeatures, rows: np.ndarray, normalise: str) -> np.ndarray:
@@ -134,37 +134,18 @@ def connected(
     return out
 
 
-def extent(positions: np.ndarray) -> float:
-    """Diagonal of the box holding the middle 98% of the points on each axis (the scene's size)."""
-    lo, hi = np.percentile(positions, [1, 99], axis=0)
-    return float(max(np.linalg.norm(hi - lo), 1e-12))
-
-
 def segment(features: MotionFeatures, settings: SegmentConfig, k: int | None = None) -> Segmentation:
     """Labels of every Gaussian: the static group, and K-means on the features of the others into
     ``k`` segments in all (the static group counted), or with ``k=None`` the K of :func:`choose_k`."""
-    static = features.static
-    moving = np.flatnonzero(~static)
-    has_static = bool(static.any())
     if k is None:
-        k, table = choose_k(features, settings)
-    else:
-        table = []
+        k, table, labels = choose_k(features, settings, with_labels=True)
+        return _result(labels, table)
     if k < 1:
         raise ValueError(f"K must be at least 1, got {k}")
-    has_static = has_static and k > 1  # K = 1: one segment, the static Gaussians included
-    labels = _labels(features, settings, moving, k - int(has_static))
-    if has_static:
-        labels = np.where(static, -1, labels)
-    labels = _tidy(_ordered(labels), features, settings, has_static)
-    if has_static:  # label 0 is the static group: keep it first
-        labels = np.where(labels == 0, -1, labels)
-    has_static = bool((labels == -1).any())
-    labels = _ordered(labels)
-    return Segmentation(labels, int(labels.max()) + 1, has_static, table)
+    return _result(_partition(features, settings, k), [])
 
 
-def choose_k(features: MotionFeatures, settings: SegmentConfig) -> tuple[int, list[dict]]:
+def choose_k(features: MotionFeatures, settings: SegmentConfig, with_labels: bool = False) -> tuple:
     """K without labels, from how rigidly the segments move (``rigid_residual`` of the moving
     Gaussians' velocities, weighted by opacity, after the smoothing and the one-piece rule): trying
     K = 1 .. ``settings.k_max`` (the static group counted), the smallest K whose residual is under
@@ -173,32 +154,48 @@ def choose_k(features: MotionFeatures, settings: SegmentConfig) -> tuple[int, li
     the order of their relative speed; a part split in two gains little. Every K tried, with its
     residual, is returned. (A rigid residual measures what a motion segment is, one rigid motion;
     silhouette or BIC scores measure how compact clusters are in feature space, which the feature
-    weights change.)"""
-    static = features.static
-    moving = np.flatnonzero(~static)
-    has_static = bool(static.any())
+    weights change.) ``with_labels``: also the labels of the K chosen (``_partition``'s)."""
+    has_static = bool(features.static.any())
+    moving = int((~features.static).sum())
     table: list[dict] = []
+    partitions = {}
     first = 1 + int(has_static)
     for k in range(first, max(settings.k_max, first) + 1):
-        labels = _labels(features, settings, moving, k - int(has_static))
-        if has_static:
-            labels = np.where(static, -1, labels)
-        labels = _tidy(_ordered(labels), features, settings, has_static)
-        rows = labels != 0 if has_static else np.ones(len(labels), dtype=bool)
+        labels = partitions[k] = _partition(features, settings, k)
+        rows = labels != -1  # the moving segments
         residual = rigid_residual(
             features.positions[rows], features.velocities[rows], labels[rows], features.opacity[rows]
         )
         table.append({"k": k, "rigid_residual": residual})
-        if residual <= settings.rigid_tolerance:
-            return k, table
-        if len(moving) <= k:
+        if residual <= settings.rigid_tolerance or moving <= k:
             break
-    for i, row in enumerate(table):  # the first K that no larger K improves on by the gain
-        if all(
-            later["rigid_residual"] > settings.rigid_gain * row["rigid_residual"] for later in table[i + 1 :]
-        ):
-            return row["k"], table
-    return table[-1]["k"], table
+    chosen = table[-1]["k"]
+    if table[-1]["rigid_residual"] > settings.rigid_tolerance:
+        for i, row in enumerate(table):  # the first K that no larger K improves on by the gain
+            later = table[i + 1 :]
+            if all(other["rigid_residual"] > settings.rigid_gain * row["rigid_residual"] for other in later):
+                chosen = row["k"]
+                break
+    return (chosen, table, partitions[chosen]) if with_labels else (chosen, table)
+
+
+def _partition(features: MotionFeatures, settings: SegmentConfig, k: int) -> np.ndarray:
+    """[N] labels of ``k`` segments: the static group (-1 here, when there is one and k > 1), K-means
+    on the features of the others, the smoothing and the one-piece rule."""
+    static = features.static
+    has_static = bool(static.any()) and k > 1  # K = 1: one segment, the static Gaussians included
+    labels = _labels(features, settings, np.flatnonzero(~static), k - int(has_static))
+    if has_static:
+        labels = np.where(static, -1, labels)
+    labels = _tidy(_ordered(labels), features, settings, has_static)
+    return np.where(labels == 0, -1, labels) if has_static else labels
+
+
+def _result(labels: np.ndarray, table: list[dict]) -> Segmentation:
+    """The segmentation of :func:`_partition`'s labels: renumbered, the static group first."""
+    has_static = bool((labels == -1).any())
+    labels = _ordered(labels)
+    return Segmentation(labels, int(labels.max()) + 1, has_static, table)
 
 
 def _tidy(

@@ -20,7 +20,7 @@ import torch
 
 from ..data.scene import available_splits, load_scene
 from ..export.ply import write_gaussians
-from ..export.render import render_at, sweep, write_video
+from ..export.render import render_gaussians, sweep, write_video
 from ..extrapolate import gaussians_at
 from ..models.gaussians import rgb_to_sh0
 from ..run import load_run, load_tensors, save_tensors
@@ -206,7 +206,7 @@ def write_outputs(model, state, seg, labels, data, downscale, truth, t, out: Pat
     rows = []
     for frame in _cameras_at(data, downscale, t, truth):
         cam = frame.camera.to(dev)
-        image = render_at(model, state, t, cam, background).cpu().numpy()
+        image = render_gaussians(model, gaussians, cam, background).cpu().numpy()
         pred, _ = render_labels(model, gaussians, labels, seg.k, cam)
         row = [overlay(image, pred, palette), colour_image(pred, palette)]
         gt = truth.read(frame) if truth is not None and abs(frame.time - t) < 1e-6 else None
@@ -233,8 +233,8 @@ def segment_video(
     """An orbit while time runs 0 -> ``t_end``, the segments painted over the rendered images."""
     palette = colours(seg.k, seg.has_static)
 
-    def paint(image, t, cam):
-        pred, _ = render_labels(model, gaussians_at(model, state, t), labels, seg.k, cam)
+    def paint(image, gaussians, cam):
+        pred, _ = render_labels(model, gaussians, labels, seg.k, cam)
         return overlay(image, pred, palette)
 
     return write_video(
