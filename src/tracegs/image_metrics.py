@@ -17,7 +17,17 @@ import numpy as np
 import torch
 from pytorch_msssim import ssim as _msssim_ssim
 
-__all__ = ["SSIM_SIGMA", "SSIM_WINDOW", "load_image", "mae_psnr", "mse", "psnr", "ssim"]
+__all__ = [
+    "SSIM_SIGMA",
+    "SSIM_WINDOW",
+    "as_rgba",
+    "load_image",
+    "mae_psnr",
+    "mse",
+    "psnr",
+    "read_image_array",
+    "ssim",
+]
 
 SSIM_WINDOW = 11
 """Side of the Gaussian SSIM window (Wang et al. 2004); images smaller than this are rejected."""
@@ -81,6 +91,48 @@ def ssim(img: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
     return value.reshape(batch)
 
 
+def read_image_array(path: str | Path) -> np.ndarray:
+    """The pixels of an image file as imageio decodes them ([H, W] or [H, W, C], any dtype).
+
+    Raises ``FileNotFoundError`` for a missing file and ``ValueError`` naming the file for one that is
+    empty, truncated or not an image (imageio blames those on a missing plugin; the file is the cause).
+    """
+    import imageio.v3 as iio
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: image not found")
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path}: empty file (0 bytes), not an image")
+    try:
+        return np.asarray(iio.imread(path))
+    except Exception as e:  # imageio raises many types depending on the plugin
+        detail = " ".join(str(e).split()[:12])
+        raise ValueError(f"{path}: truncated or not an image ({type(e).__name__}: {detail})") from None
+
+
+def to_unit_range(array: np.ndarray, path: str | Path) -> np.ndarray:
+    """Pixels as float32 in [0, 1]: 8- and 16-bit integers divided by their maximum, floats as they are."""
+    if np.issubdtype(array.dtype, np.integer):
+        return array.astype(np.float32) / float(np.iinfo(array.dtype).max)
+    if np.issubdtype(array.dtype, np.floating) or array.dtype == np.bool_:
+        return array.astype(np.float32)
+    raise ValueError(f"{path}: unsupported pixel type {array.dtype}")
+
+
+def as_rgba(array: np.ndarray, path: str | Path) -> np.ndarray:
+    """[H, W, 4] float32 in [0, 1] from grey, grey + alpha, RGB or RGBA pixels (alpha 1 where none)."""
+    array = to_unit_range(array, path)
+    if array.ndim == 2:
+        array = array[..., None]
+    if array.ndim != 3 or array.shape[-1] not in (1, 2, 3, 4):
+        raise ValueError(f"{path}: unsupported image shape {array.shape} (animated or multi-page?)")
+    channels = array.shape[-1]
+    color = array[..., :3] if channels >= 3 else np.repeat(array[..., :1], 3, axis=-1)
+    alpha = array[..., -1:] if channels in (2, 4) else np.ones_like(array[..., :1])
+    return np.concatenate([color, alpha], axis=-1)
+
+
 def load_image(path: str | Path, background: Sequence[float] = (1.0, 1.0, 1.0)) -> torch.Tensor:
     """Read an image file -> [H, W, 3] float32 in [0, 1].
 
@@ -88,32 +140,7 @@ def load_image(path: str | Path, background: Sequence[float] = (1.0, 1.0, 1.0)) 
     channel is composited over ``background`` (white by default, like the Blender/D-NeRF test images).
     Raises ``FileNotFoundError`` / ``ValueError`` naming the file if it is missing or cannot be decoded.
     """
-    import imageio.v3 as iio
-
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"image file not found: {path}")
-    try:
-        array = np.asarray(iio.imread(path))
-    except Exception as e:  # imageio raises many types depending on the plugin
-        raise ValueError(f"cannot read image {path}: {e}") from e
-
-    if np.issubdtype(array.dtype, np.integer):
-        array = array.astype(np.float32) / float(np.iinfo(array.dtype).max)
-    elif np.issubdtype(array.dtype, np.floating) or array.dtype == np.bool_:
-        array = array.astype(np.float32)
-    else:
-        raise ValueError(f"cannot read image {path}: unsupported pixel type {array.dtype}")
-    if array.ndim == 2:
-        array = array[..., None]
-    if array.ndim != 3 or array.shape[-1] not in (1, 2, 3, 4):
-        raise ValueError(
-            f"cannot read image {path}: unsupported shape {array.shape} (animated or multi-page?)"
-        )
-
-    channels = array.shape[-1]
-    color = array[..., :3] if channels >= 3 else np.repeat(array[..., :1], 3, axis=-1)
-    if channels in (2, 4):
-        alpha = array[..., -1:]
-        color = color * alpha + np.asarray(background, dtype=np.float32) * (1.0 - alpha)
+    rgba = as_rgba(read_image_array(path), path)
+    alpha = rgba[..., 3:]
+    color = rgba[..., :3] * alpha + np.asarray(background, dtype=np.float32) * (1.0 - alpha)
     return torch.from_numpy(np.array(color, dtype=np.float32))  # a fresh, writable copy

@@ -2,6 +2,7 @@
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 from tests.conftest import write_tiny_scene
@@ -178,3 +179,96 @@ def test_console_summary_reports_parts_and_physics():
     assert "t=1.000 28.00 dB" in text and "blades 21.00 dB (10% of pixels, 50% of error)" in text
     assert "|w| 1.900 vs 2.000 (5.0%)" in text and "axis off by 0.10 deg" in text
     assert "LPIPS" not in text  # columns the result lacks are left out
+
+
+def _scene_copy(trained_run, tmp_path):
+    import shutil
+
+    return shutil.copytree(trained_run[0], tmp_path / "scene")
+
+
+def test_val_and_test_frames_of_one_name_are_written_apart(trained_run, tmp_path):
+    """D-NeRF names its images r_000 in each split: one interpolation split must keep both."""
+    import shutil
+
+    import imageio.v3 as iio
+
+    scene = _scene_copy(trained_run, tmp_path)
+    val = json.loads((scene / "transforms_val.json").read_text())
+    test = json.loads((scene / "transforms_test.json").read_text())
+    twin = dict(val["frames"][0], file_path="test/" + val["frames"][0]["file_path"].split("/")[1])
+    twin["transform_matrix"] = test["frames"][0]["transform_matrix"]  # another camera, same name
+    shutil.copy(scene / val["frames"][0]["file_path"], scene / twin["file_path"])
+    test["frames"].append(twin)
+    (scene / "transforms_test.json").write_text(json.dumps(test))
+    out = tmp_path / "images"
+    result = evaluate_run(trained_run[1], scene, with_lpips=False, device="cpu", out=out)
+    written = sorted(p.name for p in (out / "interpolation").iterdir())
+    name = Path(twin["file_path"]).stem
+    assert f"val_{name}.png" in written and f"test_{name}.png" in written and f"{name}.png" not in written
+    assert len(written) == result["interpolation"]["frames"]
+    a, b = (iio.imread(out / "interpolation" / f"{s}_{name}.png") for s in ("val", "test"))
+    assert (a != b).any()  # two cameras' renders, neither overwritten by the other
+
+
+def test_eval_writes_its_images_into_out(trained_run, tmp_path, capsys):
+    _, run = trained_run
+    out, path = tmp_path / "frames", tmp_path / "e.json"
+    main(["eval", "--run", str(run), "--out", str(out), "--json", str(path), "--no-lpips"])
+    result = json.loads(path.read_text())
+    for split in ("interpolation", "extrapolation"):
+        assert len(list((out / split).glob("*.png"))) == result[split]["frames"] > 0
+    assert result["images"] == str(out)
+
+
+def _synth_motion(gt):
+    from tracegs.data.synth.motion import RigidMotion, motion_record
+
+    parts = [motion_record("disc", 1, RigidMotion("rotation", angular_velocity=1.0))]
+    (gt / "motion.json").write_text(json.dumps({"parts": parts}))
+
+
+def _synth_points(gt, **keys):
+    import numpy as np
+
+    keys = keys or {"points": np.zeros((10, 3)), "part_ids": np.ones(10, dtype=np.int64)}
+    np.savez(gt / "points.npz", **keys)
+
+
+GT_LAYOUTS = {
+    # name: (files written into gt/, what the notes must say; None: nothing skipped but per-part errors)
+    "tracegs synth": ((_synth_motion, _synth_points), None),
+    "another motion format": (
+        (lambda gt: (gt / "motion.json").write_text('{"objects": []}'), _synth_points),
+        "motion.json",
+    ),
+    "no points.npz": ((_synth_motion,), "points.npz not found"),
+    "points.npz with other keys": (
+        (_synth_motion, lambda gt: _synth_points(gt, xyz=__import__("numpy").zeros((4, 3)))),
+        "points.npz",
+    ),
+    "points.npz not an archive": (
+        (_synth_motion, lambda gt: (gt / "points.npz").write_bytes(b"xx")),
+        "points.npz",
+    ),
+}
+
+
+@pytest.mark.parametrize("writers, skipped", GT_LAYOUTS.values(), ids=list(GT_LAYOUTS))
+def test_ground_truth_of_another_layout_is_skipped_and_said(trained_run, tmp_path, capsys, writers, skipped):
+    scene = _scene_copy(trained_run, tmp_path)
+    (scene / "gt").mkdir()
+    for write in writers:
+        write(scene / "gt")
+    path = tmp_path / "e.json"
+    main(["eval", "--run", str(trained_run[1]), "--data", str(scene), "--json", str(path), "--no-lpips"])
+    result = json.loads(path.read_text())
+    printed = capsys.readouterr().out
+    physics_notes = [n for n in result.get("notes", []) if n.startswith("physics errors skipped")]
+    assert result["extrapolation"]["frames"] > 0
+    if skipped is None:
+        assert "physics" in result and not physics_notes
+    else:
+        assert "physics" not in result and len(physics_notes) == 1 and skipped in physics_notes[0]
+        assert f"note: {physics_notes[0]}" in printed
+    assert any("per-part errors skipped: no masks" in n for n in result["notes"])  # no gt/masks here

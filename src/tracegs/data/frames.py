@@ -8,10 +8,9 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import imageio.v3 as iio
-import numpy as np
 import torch
 
+from ..image_metrics import as_rgba, read_image_array
 from .cameras import Camera
 
 SPLITS = ("train", "val", "test")
@@ -31,6 +30,8 @@ class Frame:
     camera_id: int | None = None
     label: str | None = None
     """A name unique within the split, for files written per frame; default: the image's stem."""
+    downscale: int = 1
+    """The factor by which the image file is larger than ``camera`` (``--downscale``)."""
 
     @property
     def name(self) -> str:
@@ -65,47 +66,54 @@ def fail(path: Path, problem: str) -> DatasetError:
 
 def load_json(path: Path):
     """A JSON file's contents; a missing or unparsable file is a ``DatasetError`` naming it."""
+    if path.is_dir():
+        raise fail(path, "is a folder, expected a JSON file")
     if not path.is_file():
         raise fail(path, "file not found")
     try:
         return json.loads(path.read_text())
+    except UnicodeDecodeError:
+        raise fail(path, "not valid JSON (not UTF-8 text)") from None
     except json.JSONDecodeError as e:
         raise fail(path, f"not valid JSON ({e})") from None
 
 
 def read_json(path: Path) -> dict:
+    """A split file: a JSON object with a non-empty list ``frames`` (``DatasetError`` naming it else)."""
     data = load_json(path)
-    if not isinstance(data, dict) or not isinstance(data.get("frames"), list) or not data["frames"]:
-        raise fail(path, "expected an object with a non-empty list 'frames'")
+    if not isinstance(data, dict):
+        raise fail(path, f"expected an object with a non-empty list 'frames', got a {type(data).__name__}")
+    if "frames" not in data:
+        raise fail(path, "no 'frames' (expected an object with a non-empty list 'frames')")
+    if not isinstance(data["frames"], list):
+        raise fail(path, f"'frames' must be a list, got a {type(data['frames']).__name__}")
+    if not data["frames"]:
+        raise fail(path, "'frames' is empty: the split has no frames (remove the file if it has none)")
     return data
 
 
 def load_rgba(frame: Frame) -> torch.Tensor:
-    """Read a frame's image as float [H, W, 4] in [0, 1] (alpha = 1 for images without one)."""
+    """Read a frame's image as float [H, W, 4] in [0, 1] (alpha = 1 for images without one); grey,
+    grey + alpha, RGB and RGBA files of 8 or 16 bits; box-filtered by ``frame.downscale``."""
     path = frame.image_path
-    if not path.is_file():
-        raise DatasetError(f"{path}: image not found")
     try:
-        arr = iio.imread(path)
-    except Exception as e:  # imageio raises many types for corrupt files
-        raise DatasetError(f"{path}: cannot read image ({e})") from None
-    img = torch.from_numpy(np.ascontiguousarray(arr)).float()
-    img = img / (65535.0 if arr.dtype == np.uint16 else 255.0 if arr.dtype == np.uint8 else 1.0)
-    if img.ndim == 2:
-        img = img[..., None].expand(-1, -1, 3)
-    if img.shape[-1] == 3:
-        img = torch.cat([img, torch.ones_like(img[..., :1])], dim=-1)
-    H, W = frame.height, frame.width
-    if img.shape[:2] != (H, W):
-        fy, fx = img.shape[0] / H, img.shape[1] / W
-        if fx != fy or fx != int(fx):
-            raise DatasetError(f"{path}: image is {img.shape[1]}x{img.shape[0]}, expected {W}x{H}")
+        rgba = as_rgba(read_image_array(path), path)
+    except (FileNotFoundError, ValueError) as e:
+        raise DatasetError(str(e)) from None
+    img = torch.from_numpy(rgba)
+    H, W, ds = frame.height, frame.width, frame.downscale
+    if img.shape[:2] == (H * ds, W * ds) and ds > 1:
         # box-filter premultiplied colour so that edges do not pick up the hidden colour of empty pixels
         premult = torch.cat([img[..., :3] * img[..., 3:], img[..., 3:]], dim=-1)
         small = torch.nn.functional.interpolate(premult.permute(2, 0, 1)[None], size=(H, W), mode="area")
         small = small[0].permute(1, 2, 0)
         img = torch.cat([small[..., :3] / small[..., 3:].clamp_min(1e-8), small[..., 3:]], dim=-1)
-    return img[..., :4].contiguous()
+    elif img.shape[:2] != (H, W):
+        size = f"{img.shape[1]}x{img.shape[0]}"
+        if ds > 1 and (img.shape[0] % ds or img.shape[1] % ds):
+            raise DatasetError(f"{path}: --downscale {ds} does not divide the image size {size}")
+        raise DatasetError(f"{path}: image is {size}, expected {W * ds}x{H * ds} (the split's image size)")
+    return img.contiguous()
 
 
 def load_image(frame: Frame, background=(1.0, 1.0, 1.0)) -> torch.Tensor:

@@ -48,7 +48,11 @@ def load_panoptic(root: str | Path, split: str = "train", downscale: int = 1) ->
         )
     if not (np.isfinite(K).all() and np.isfinite(w2c).all()):
         raise DatasetError(f"{path}: 'k' and 'w2c' must be finite")
-    width, height = int(meta["w"]), int(meta["h"])
+    width, height = meta["w"], meta["h"]
+    if not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in (width, height)):
+        raise DatasetError(
+            f"{path}: 'w' and 'h' must be positive whole numbers of pixels, got {width!r}, {height!r}"
+        )
     frames = []
     for i in range(T):
         time = i / (T - 1) if T > 1 else 0.0
@@ -63,7 +67,8 @@ def load_panoptic(root: str | Path, split: str = "train", downscale: int = 1) ->
                 camera = camera.scaled(1.0 / downscale)
             cam_id = int(ids[i][c])
             label = f"c{cam_id:02d}_f{i:03d}"
-            frames.append(Frame((root / "ims" / names[i][c]).resolve(), time, camera, cam_id, label))
+            image = (root / "ims" / names[i][c]).resolve()
+            frames.append(Frame(image, time, camera, cam_id, label, downscale))
     return SceneSplit(
         root=root,
         split=split,

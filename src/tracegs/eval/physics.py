@@ -31,6 +31,41 @@ def _gt(data: Path):
     return pts["points"], pts["part_ids"], lambda t: part_transforms(gt / "motion.json", t)
 
 
+def ground_truth_problem(data: Path) -> str | None:
+    """Why ``data/gt`` cannot be compared with (missing files, or another generator's layout), in words,
+    or None when it holds what ``tracegs synth`` writes: ``motion.json`` (parts with ids 1..P, axis,
+    angular velocity and acceleration) and ``points.npz`` (``points`` [M, 3], ``part_ids`` [M] in 1..P)."""
+    import json
+    import zipfile
+
+    from ..data.synth.motion import load_motions
+
+    gt = Path(data) / "gt"
+    motion, points = gt / "motion.json", gt / "points.npz"
+    for path in (motion, points):
+        if not path.is_file():
+            return f"{path} not found"
+    try:
+        records = json.loads(motion.read_text())["parts"]
+        count = len(load_motions(motion))
+        for r in records:
+            _compare_omega(np.zeros(3), r, 0.0)
+    except (ValueError, KeyError, TypeError, IndexError) as err:
+        return f"{motion}: not the layout of tracegs synth ({type(err).__name__}: {err})"
+    try:
+        with np.load(points) as z:
+            xyz, ids = np.asarray(z["points"], dtype=np.float64), np.asarray(z["part_ids"])
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as err:
+        return f"{points}: not the layout of tracegs synth ({type(err).__name__}: {err})"
+    if xyz.ndim != 2 or xyz.shape[1] != 3 or ids.shape != (len(xyz),) or len(xyz) == 0:
+        return (
+            f"{points}: expected points [M, 3] and part_ids [M], got {list(xyz.shape)} and {list(ids.shape)}"
+        )
+    if not np.issubdtype(ids.dtype, np.integer) or ids.min() < 1 or ids.max() > count:
+        return f"{points}: part_ids must be the part ids of motion.json (1..{count})"
+    return None
+
+
 def assign_parts(
     means: torch.Tensor, points_world: np.ndarray, part_ids: np.ndarray, radius: float
 ) -> torch.Tensor:

@@ -11,10 +11,13 @@ nothing of the test protocol is looked at.
 
 from __future__ import annotations
 
-from collections import defaultdict
+import json
+from collections import Counter, defaultdict
+from dataclasses import replace
 from pathlib import Path
 
 import torch
+from tqdm import tqdm
 
 from ..config import apply_overrides
 from ..data.scene import Frame, available_splits, load_image, load_scene
@@ -40,7 +43,7 @@ def split_frames(
     validation future: frames of the train split with t_train_end < t <= future_end. With
     ``with_cameras``, ``(cameras, frame)`` pairs where ``cameras`` says whether a training camera
     took the frame ("train_cameras") or not ("new_cameras")."""
-    interpolation, extrapolation, seen, train_cameras = [], [], set(), set()
+    chosen, seen, train_cameras = [], set(), set()  # (protocol split, cameras, split, frame)
     for split in available_splits(data):
         frames = load_scene(data, split, downscale).frames
         if split == "train":
@@ -52,11 +55,23 @@ def split_frames(
             cameras = "train_cameras" if _camera_key(f) in train_cameras else "new_cameras"
             if f.time > t_train_end + 1e-9:
                 if future_end is None or (split == "train" and f.time <= future_end + 1e-9):
-                    extrapolation.append((cameras, f))
+                    chosen.append(("extrapolation", cameras, split, f))
             elif split == "val" or (split == "test" and future_end is None):
-                interpolation.append((cameras, f))
-    out = {"interpolation": interpolation, "extrapolation": extrapolation}
+                chosen.append(("interpolation", cameras, split, f))
+    out = {"interpolation": [], "extrapolation": []}
+    for protocol, cameras, f in _unique_names(chosen):
+        out[protocol].append((cameras, f))
     return out if with_cameras else {k: [f for _, f in v] for k, v in out.items()}
+
+
+def _unique_names(chosen: list[tuple[str, str, str, Frame]]) -> list[tuple[str, str, Frame]]:
+    """``(protocol split, cameras, frame)``, the frames whose name another frame of their protocol split
+    shares (``val/r_000`` and ``test/r_000``) renamed ``SPLIT_NAME``: one image file per frame."""
+    counts = Counter((protocol, f.name) for protocol, _, _, f in chosen)
+    return [
+        (protocol, cameras, f if counts[protocol, f.name] == 1 else replace(f, label=f"{split}_{f.name}"))
+        for protocol, cameras, split, f in chosen
+    ]
 
 
 def _camera_key(f: Frame) -> tuple:
@@ -91,12 +106,17 @@ def evaluate_run(
     device: str = "auto",
     future_end: float | None = None,
     render_settings: dict | None = None,
+    out: Path | None = None,
 ) -> dict:
     """Render both splits of a trained run and score them (schema in docs/EVALUATION.md); with
     ``future_end``, the extrapolation split is the validation future (``split_frames``).
     ``render_settings``: ``extrapolation`` settings that change rendering without a new calibration,
-    by dotted name as in ``config.apply_overrides`` (e.g. ``{"extrapolation.free_bodies": False}``)."""
+    by dotted name as in ``config.apply_overrides`` (e.g. ``{"extrapolation.free_bodies": False}``).
+    ``out``: the folder of the rendered images (``OUT/<split>/<frame>.png``; default ``RUN/eval``).
+    Ground truth the scene's ``gt/`` lacks, or holds in another layout, is skipped and said so in the
+    result's ``notes``."""
     run = Path(run)
+    out = run / "eval" if out is None else Path(out)
     loaded = load_run(run, device)
     model, cfg, meta, state = loaded.model, loaded.config, loaded.meta, loaded.state
     if render_settings:
@@ -111,8 +131,12 @@ def evaluate_run(
     if with_lpips:
         from .lpips import lpips as lpips_fn
     result: dict = {}
-    names = part_names(data)
+    notes: list[str] = []
+    names = part_names(data, notes)
     splits = split_frames(data, t_end, cfg.downscale, with_cameras=True, future_end=future_end)
+    progress = tqdm(
+        total=sum(map(len, splits.values())), desc="eval", unit="image", disable=None, leave=False
+    )
     for split, frames in splits.items():
         parts = PartErrors(names) if names and not half_res and cfg.downscale == 1 else None
         by_time: dict[float, list[tuple[str, Frame]]] = defaultdict(list)
@@ -142,9 +166,10 @@ def evaluate_run(
                     rec["lpips_alex"] = float(lpips_fn(pred, gt, net="alex"))
                 records.append(rec)
                 if parts is not None:
-                    parts.add(pred, gt, data / "gt" / "masks" / f.image_path.parent.name / f.image_path.name)
+                    parts = _add_part_errors(parts, pred, gt, mask_path(data, f), split, notes)
                 if save_images:
-                    atomic_write_image(run / "eval" / split / f"{f.name}.png", pred)
+                    atomic_write_image(out / split / f"{f.name}.png", pred)
+                progress.update(1)
         summary = _aggregate(records, lpips_fn is not None)
         if split == "extrapolation":
             summary["per_time"] = _per_time(records, lpips_fn is not None)
@@ -156,11 +181,16 @@ def evaluate_run(
         if parts is not None and parts.pixels.sum() > 0:
             summary["per_part"] = parts.summary()
         result[split] = summary
-    if (data / "gt" / "motion.json").is_file() and result["extrapolation"].get("frames"):
-        from .physics import physics_errors
+    progress.close()
+    if (data / "gt").is_dir() and result["extrapolation"].get("frames"):
+        from .physics import ground_truth_problem, physics_errors
 
-        future = [r["t"] for r in result["extrapolation"]["per_time"]]
-        result["physics"] = physics_errors(model, state, data, future)
+        problem = ground_truth_problem(data)
+        if problem is None:
+            future = [r["t"] for r in result["extrapolation"]["per_time"]]
+            result["physics"] = physics_errors(model, state, data, future)
+        else:
+            notes.append(f"physics errors skipped: {problem}")
     result.update(
         method=cfg.method,
         preset=cfg.preset,
@@ -171,19 +201,48 @@ def evaluate_run(
         iterations=meta["step"],
         freeze_threshold=state.freeze_threshold,
         gaussians=int(model.gaussians["means"].shape[0]),
+        **({"images": str(out)} if save_images else {}),
+        **({"notes": notes} if notes else {}),
     )
     return result
 
 
-def part_names(data: Path) -> dict[int, str]:
-    """Part id -> name of a generated scene (``gt/motion.json``; 0 = background), else empty."""
-    import json
+def mask_path(data: Path, f: Frame) -> Path:
+    """Where ``tracegs synth`` keeps the part-id mask of a frame's image (``gt/masks/SPLIT/NAME``)."""
+    return Path(data) / "gt" / "masks" / f.image_path.parent.name / f.image_path.name
 
-    path = Path(data) / "gt" / "motion.json"
-    if not path.is_file() or not (Path(data) / "gt" / "masks").is_dir():
+
+def _add_part_errors(parts, pred, gt, mask: Path, split: str, notes: list[str]):
+    """``parts`` with one more frame, or None (and a note) when the scene's mask does not fit it."""
+    try:
+        parts.add(pred, gt, mask)
+    except ValueError as err:
+        notes.append(f"{split} per-part errors skipped: {err}")
+        return None
+    return parts
+
+
+def part_names(data: Path, notes: list[str] | None = None) -> dict[int, str]:
+    """Part id -> name of a generated scene (``gt/motion.json``; 0 = background), else empty. A ``gt/``
+    folder that lacks the masks or the parts, or holds them in another layout, adds to ``notes``."""
+    gt = Path(data) / "gt"
+    path = gt / "motion.json"
+    notes = [] if notes is None else notes
+    missing = [name for name in ("motion.json", "masks") if not (gt / name).exists()]
+    if missing:
+        if gt.is_dir():
+            notes.append(f"per-part errors skipped: no {' and no '.join(missing)} in {gt}")
         return {}
-    parts = json.loads(path.read_text()).get("parts", [])
-    return {0: "background"} | {int(p["id"]): str(p["name"]) for p in parts}
+    try:
+        parts = json.loads(path.read_text())["parts"]
+        names = {int(p["id"]): str(p["name"]) for p in parts}
+    except (ValueError, KeyError, TypeError) as err:
+        notes.append(f"per-part errors skipped: {path}: no list of parts with 'id' and 'name' ({err!r})")
+        return {}
+    if any(i < 1 for i in names):
+        notes.append(f"per-part errors skipped: {path}: part ids must be 1 or more (0 is the background)")
+        return {}
+    return {0: "background"} | names
 
 
 class PartErrors:

@@ -58,6 +58,9 @@ def _parts(split: str, summary: dict) -> str | None:
 def _physics(physics: dict) -> list[str]:
     lines = []
     for part, p in sorted((physics or {}).get("parts", {}).items()):
+        if "mean_trajectory_error" not in p:  # no Gaussian lies on the part's ground-truth surface
+            lines.append(f"part {part}: no Gaussians on it")
+            continue
         text = f"part {part}: future trajectory error {p['mean_trajectory_error']:.4f}"
         if "omega_rel_error" in p:
             learned, truth = math.hypot(*p["omega_learned"]), math.hypot(*p["omega_gt"])
@@ -69,7 +72,8 @@ def _physics(physics: dict) -> list[str]:
 
 
 def format_summary(result: dict) -> str:
-    """Plain-text summary of an ``evaluate_run`` result: header, split table, horizon, parts, physics."""
+    """Plain-text summary of an ``evaluate_run`` result: header, split table, horizon, parts, physics,
+    and the notes on what was skipped."""
     head = f"{result.get('scene', '?')}: {result.get('method', '?')} ({result.get('preset', '?')})"
     if result.get("gaussians") is not None:
         head += f", {result['gaussians']} Gaussians"
@@ -82,4 +86,5 @@ def format_summary(result: dict) -> str:
     optional += [_parts(s, result.get(s, {})) for s in ("interpolation", "extrapolation")]
     lines += [x for x in optional if x]
     lines += _physics(result.get("physics"))
+    lines += [f"note: {note}" for note in result.get("notes", [])]
     return "\n".join(lines)

@@ -7,9 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from ..data.cameras import Camera, look_at_viewmat
-from ..data.scene import load_scene
+from ..data.scene import available_splits, load_scene
 from ..extrapolate import gaussians_at
 from ..run import load_run
 from ..utils import atomic_write_image
@@ -52,16 +53,57 @@ def orbit_camera(reference: list[Camera], azimuth_deg: float, elevation_deg: flo
 
 
 def pick_camera(data: Path, spec: str, downscale: int = 1) -> Camera:
-    """``SPLIT:INDEX`` of a dataset camera, or ``orbit:AZIMUTH_DEG``."""
+    """``SPLIT:INDEX`` of a dataset camera, or ``orbit:AZIMUTH_DEG``; a ValueError naming ``--camera``
+    and the choices for any other spec."""
     kind, _, value = spec.partition(":")
+    splits = available_splits(data)
+    usage = f"expected SPLIT:INDEX with SPLIT one of {', '.join(splits) or '(none found in ' + str(data) + ')'}, or orbit:DEGREES"
     if kind == "orbit":
+        try:
+            azimuth = float(value or 0)
+        except ValueError:
+            azimuth = math.nan
+        if not math.isfinite(azimuth):
+            raise ValueError(f"--camera {spec!r}: the orbit's azimuth must be a number of degrees; {usage}")
         cams = [f.camera for f in load_scene(data, "train", downscale).frames]
-        return orbit_camera(cams, float(value or 0))
+        return orbit_camera(cams, azimuth)
+    if kind not in splits:
+        raise ValueError(f"--camera {spec!r}: no split {kind!r} in {data}; {usage}")
     frames = load_scene(data, kind, downscale).frames
-    index = int(value or 0)
-    if not 0 <= index < len(frames):
-        raise ValueError(f"camera {spec!r}: split {kind!r} has {len(frames)} frames")
-    return frames[index].camera
+    if not (value or "0").isdigit() or not 0 <= int(value or 0) < len(frames):
+        raise ValueError(
+            f"--camera {spec!r}: split {kind!r} has {len(frames)} frames, choose an index in 0-{len(frames) - 1}"
+        )
+    return frames[int(value or 0)].camera
+
+
+MAX_TIME_FACTOR = 10.0
+"""Latest time a command renders, in multiples of the training span's end (and at least 1): the
+extrapolation integrates the physics from the training span's end, so the cost grows with t."""
+
+
+def check_time(t: float, t_max: float, flag: str = "--time") -> float:
+    """``t`` when a run trained up to ``t_max`` can render it: finite, >= 0, and no later than
+    ``MAX_TIME_FACTOR`` x ``t_max`` (at least 1); else a ValueError naming ``flag``."""
+    limit = max(MAX_TIME_FACTOR * t_max, 1.0)
+    if not math.isfinite(t) or t < 0:
+        raise ValueError(f"{flag} must be a finite time >= 0, got {t}")
+    if t > limit:
+        raise ValueError(
+            f"{flag} {t:g} is beyond the limit {limit:g} ({MAX_TIME_FACTOR:g} x the training span's end "
+            f"{t_max:g}): the extrapolation's cost grows with t"
+        )
+    return t
+
+
+IMAGE_SUFFIXES, VIDEO_SUFFIXES = (".png", ".jpg", ".jpeg"), (".mp4", ".gif")
+
+
+def _check_out(out: Path | None, video: bool) -> None:
+    suffixes = VIDEO_SUFFIXES if video else IMAGE_SUFFIXES
+    if out is not None and Path(out).suffix.lower() not in suffixes:
+        kind = "a video" if video else "an image"
+        raise ValueError(f"--out {out}: {kind} is written as {' or '.join(suffixes)}")
 
 
 def render_command(
@@ -75,8 +117,15 @@ def render_command(
     data: Path | None = None,
     device: str = "auto",
 ) -> Path:
+    """``tracegs render``: one image of ``run`` at ``time`` from ``camera`` (``pick_camera``), or with
+    ``video`` a sweep of ``frames`` frames while time runs 0 -> ``t_end``; returns the file written.
+    The times, the camera and ``out`` are checked before anything is rendered."""
+    _check_out(out, video)
+    if video and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 1):
+        raise ValueError(f"--frames must be a positive integer, got {frames}")
     loaded = load_run(run, device)
     model, cfg, state = loaded.model, loaded.config, loaded.state
+    check_time(t_end if video else time, state.t_max, "--t-end" if video else "--time")
     data = Path(data or cfg.data)
     background = torch.tensor(load_scene(data, "train").background, device=model.aabb.device)
     if not video:
@@ -90,7 +139,8 @@ def render_command(
 
 def render_sweep_video(model, state, data, out: Path, t_end, frames, background, downscale=1) -> Path:
     """A video whose camera orbits once while time runs from 0 to ``t_end``."""
-    return write_video(sweep(model, state, data, t_end, frames, background, downscale), out)
+    images = sweep(model, state, data, t_end, frames, background, downscale)
+    return write_video(images, out, total=frames)
 
 
 def sweep(model, state, data, t_end: float, frames: int, background, downscale: int = 1, paint=None):
@@ -108,25 +158,59 @@ def sweep(model, state, data, t_end: float, frames: int, background, downscale: 
         yield (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
-def write_video(images, out: Path) -> Path:
+def even_size(image: np.ndarray) -> np.ndarray:
+    """``image`` [H, W, C] padded by repeating its last row / column to an even height and width
+    (H.264 in yuv420p, the format every player reads, needs both even)."""
+    h, w = image.shape[:2]
+    return np.pad(image, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+
+
+def _ffmpeg_available() -> bool:
+    try:
+        import imageio_ffmpeg
+
+        imageio_ffmpeg.get_ffmpeg_exe()
+    except (ImportError, RuntimeError):
+        return False
+    return True
+
+
+def _check_video(path: Path, shape: tuple[int, ...]) -> None:
+    """Raise OSError unless ``path`` is a non-empty video whose first frame imageio reads back at ``shape``."""
+    import imageio.v3 as iio
+
+    try:
+        first = next(iter(iio.imiter(path))) if path.stat().st_size > 0 else None
+    except Exception as e:  # imageio raises many types for an unreadable file
+        raise OSError(f"{path}: the video written cannot be read back ({type(e).__name__}: {e})") from None
+    if first is None or first.shape[:2] != shape[:2]:
+        raise OSError(f"{path}: the video written is empty or of another size than its frames")
+
+
+def write_video(images, out: Path, total: int | None = None) -> Path:
     """Write the frames ``images`` (uint8 [H, W, 3]) as MP4 at 24 fps (GIF when ``out`` says so, or when
-    imageio finds no ffmpeg: then next to ``out``), atomically; returns the path written."""
+    there is no ffmpeg: then next to ``out``), atomically, padded to an even size; the file is read back
+    before it replaces ``out``. Returns the path written. ``total``: the frame count, for the progress bar."""
     import imageio.v2 as imageio
 
-    images = list(images)
+    progress = tqdm(
+        images, total=total, desc=f"video {Path(out).name}", unit="frame", disable=None, leave=False
+    )
+    images = [even_size(img) for img in progress]
+    if not images:
+        raise ValueError(f"{out}: a video needs at least one frame")
     out = Path(out)
+    if out.suffix == ".mp4" and not _ffmpeg_available():
+        out = out.with_suffix(".gif")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.stem}.tmp{out.suffix}")
     try:
         if out.suffix == ".mp4":
-            import imageio_ffmpeg  # noqa: F401  (the ffmpeg binary imageio writes MP4 with)
-
             imageio.mimwrite(tmp, images, fps=24, macro_block_size=1)
         else:
             imageio.mimwrite(tmp, images, duration=1 / 24)
-    except Exception:  # no ffmpeg: fall back to a GIF next to the requested path
-        out = out.with_suffix(".gif")
-        tmp = out.with_name(f".{out.stem}.tmp.gif")
-        imageio.mimwrite(tmp, images, duration=1 / 24)
-    tmp.replace(out)
+        _check_video(tmp, images[0].shape)
+        tmp.replace(out)
+    finally:
+        tmp.unlink(missing_ok=True)
     return out

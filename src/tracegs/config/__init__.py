@@ -7,6 +7,7 @@ fields, with the paper's Table 4 switches) and ``extrapolation`` (what happens a
 handover, what holds still, free bodies; read after the last step and when rendering, never in
 training). Why each preset value is what it is: docs/DESIGN.md; the numbers behind it: docs/RESULTS.md.
 A run folder holds the resolved config as ``config.json`` (``run.py``; plain JSON, never ``eval``).
+``validate(cfg)`` (``config/validate.py``) checks every setting before anything is trained.
 """
 
 from __future__ import annotations
@@ -18,8 +19,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from .models.deformation import DeformationConfig
-from .models.dynamics import DynamicsConfig
+from ..models.deformation import DeformationConfig
+from ..models.dynamics import DynamicsConfig
+from .validate import check_setting, flag_name, validate  # noqa: F401  (part of the config API)
 
 
 @dataclass
@@ -50,6 +52,9 @@ class OptimConfig:
     """Final learning rate of the HexPlane planes, multiplied by the scene extent (4DGS)."""
     ssim_weight: float = 0.2
     """Loss = (1 - w) * L1 + w * (1 - SSIM)."""
+    nan_lr_factor: float = 0.5
+    """What every learning rate is multiplied by when a non-finite loss, gradient or parameter makes
+    training restore its last good state (once; the second time training stops)."""
 
 
 @dataclass
@@ -296,7 +301,8 @@ def tiny() -> TrainConfig:
     cfg.preset = "tiny"
     cfg.static_iterations, cfg.dynamic_iterations = 2, 2
     cfg.init_points = 200
-    cfg.densify = DensifyConfig(refine_start=0, refine_every=1, reset_every=0)
+    # densifying every step without a budget grows to 10^5 Gaussians on a real scene in a few steps
+    cfg.densify = DensifyConfig(refine_start=0, refine_every=1, reset_every=0, max_gaussians=20_000)
     return cfg
 
 

@@ -1,0 +1,270 @@
+"""The flags of each ``tracegs`` command, one dataclass per command: tyro turns the field docstrings
+into ``--help``, and the first line of the class docstring is the command's line in ``tracegs --help``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import tyro
+
+from ..segment.config import SegmentConfig
+
+PresetName = Literal["paper", "cpu-fast", "tiny"]
+"""The names of ``config.PRESETS``."""
+
+
+@dataclass
+class Demo:
+    """Run the whole pipeline on a built-in scene: synthesise, train TRACE, evaluate, write a video.
+
+    Writes the scene, the run, the metrics, rendered test frames and a time-sweep video under --out."""
+
+    out: Path = Path("runs/demo")
+    """Folder for the scene, the run and the results."""
+    scene: str = "fan"
+    """Built-in synthetic scene (see `tracegs synth --help`)."""
+    preset: PresetName = "cpu-fast"
+    """Training preset."""
+    resolution: int = 128
+    """Image size of the synthesised scene."""
+    json: Path | None = None
+    """Also write the demo's summary (metrics, files written) here."""
+    device: str = "auto"
+    """auto, cpu or cuda."""
+
+
+@dataclass
+class Synth:
+    """Render a synthetic multi-part dynamic scene with ground-truth physics (Mitsuba 3)."""
+
+    out: Path
+    """Output scene folder (Blender/D-NeRF format plus gt/)."""
+    scene: str = "fan"
+    """fan, foldingchair, satellite, fallingball or slider."""
+    resolution: int = 128
+    views: int = 15
+    frames: int = 60
+    seed: int = 0
+    sun: float = 2.0
+    """Irradiance of the sun (directional light, hard shadows); 0 = no shading and no shadows."""
+    ambient: float = 0.4
+    """Radiance of a surface of albedo 1 lit by the ambient term alone."""
+
+
+@dataclass
+class Train:
+    """Train TRACE (--method defgs: the DefGS baseline, static: 3DGS) on a scene into a run folder.
+
+    Every setting of the preset is a flag (`tracegs train --preset P --help` lists them with P's
+    values); a killed run continues where it stopped when the same command runs again."""
+
+    preset: PresetName = "cpu-fast"
+    """The named config whose values are the defaults of every other flag."""
+    json: Path | None = None
+    """Also write the training summary here (it always goes to RUN/summary.json)."""
+    resume: Path | None = None
+    """Continue the run folder RUN with its own RUN/config.json (only --device may change)."""
+
+
+@dataclass
+class Calibrate:
+    """Choose a trained run's post-training extrapolation state again and store it.
+
+    Chosen on the training images (the handover's still Gaussians, the free bodies): for a run written
+    by an older tracegs, or after changing an extrapolation setting (e.g. ``--free-bodies False``)."""
+
+    run: Path
+    """Run folder written by `tracegs train`."""
+    handover_frames: float | None = None
+    """New ``extrapolation.handover_frames`` (default: the run's)."""
+    free_bodies: bool | None = None
+    """New ``extrapolation.free_bodies`` (default: the run's)."""
+    data: Path | None = None
+    """Scene folder (default: the one the run was trained on)."""
+    json: Path | None = None
+    """Also write what the calibration chose here."""
+    device: str = "auto"
+    """auto, cpu or cuda."""
+
+
+@dataclass
+class Render:
+    """Render a trained run at any time (t > 1 extrapolates with the learned physics), or a time-sweep video."""
+
+    run: Path
+    """Run folder written by `tracegs train`."""
+    out: Path | None = None
+    """Output PNG (one image) or MP4/GIF (with --video); default inside the run folder."""
+    time: float = 1.0
+    """Time to render (ignored with --video)."""
+    camera: str = "test:0"
+    """SPLIT:INDEX of a dataset camera (e.g. val:2), or 'orbit:DEG' for an orbit camera at azimuth DEG."""
+    video: bool = False
+    """Render a video with the camera sweeping around while time goes from 0 to --t-end."""
+    t_end: float = 1.5
+    """Last time of the video."""
+    frames: int = 90
+    """Frames of the video."""
+    data: Path | None = None
+    """Scene folder (default: the one the run was trained on)."""
+    device: str = "auto"
+    """auto, cpu or cuda."""
+
+
+@dataclass
+class Eval:
+    """Evaluate a run on the interpolation and extrapolation splits (the paper's protocol)."""
+
+    run: Path
+    """Run folder written by `tracegs train`."""
+    data: Path | None = None
+    """Scene folder (default: the one the run was trained on)."""
+    json: Path | None = None
+    """Write the metrics here (default: RUN/eval.json)."""
+    out: Path | None = None
+    """Folder of the rendered frames, OUT/interpolation/ and OUT/extrapolation/ (default: RUN/eval)."""
+    half_res: bool = False
+    """Score at half resolution."""
+    lpips: bool = True
+    """Compute LPIPS (VGG and AlexNet)."""
+    save_images: bool = True
+    """Write the rendered frames into --out."""
+    device: str = "auto"
+    """auto, cpu or cuda."""
+
+
+@dataclass
+class Export:
+    """Export a run's Gaussians at any time (the predicted future included) as 3DGS PLY or .splat files.
+
+    ``--time T`` writes one file, ``--times a:b:step`` a numbered sequence that splat editors play."""
+
+    run: Path
+    """Run folder written by `tracegs train`."""
+    time: float | None = None
+    """The one time to export (t past the training span is predicted)."""
+    times: str | None = None
+    """A sequence START:STOP:STEP of times, written as NAME_0000.ply, NAME_0001.ply, ... and NAME.json."""
+    ply: Path | None = None
+    """The file of --time (default: RUN/export/gaussians_t<T>.ply); with --times its stem names the files."""
+    out: Path | None = None
+    """Folder of a --times sequence (default: RUN/export/sequence)."""
+    format: Literal["ply", "splat", "both"] = "ply"
+    """ply (3DGS PLY), splat (the web viewers' .splat) or both."""
+    labels: bool = False
+    """Colour the Gaussians by their segment (`tracegs segment` first)."""
+    json: Path | None = None
+    """Also write the export's report here."""
+    device: str = "auto"
+    """auto, cpu or cuda."""
+
+
+@dataclass
+class View:
+    """Serve an interactive viewer of a run in the browser: any camera, a time slider into the future."""
+
+    run: Path
+    """Run folder written by `tracegs train`."""
+    port: int = 8080
+    """TCP port (a free one above it when it is taken)."""
+    host: str = "127.0.0.1"
+    """Address to listen on (0.0.0.0 serves other machines too)."""
+    data: Path | None = None
+    """Scene folder whose cameras are drawn (default: the one the run was trained on)."""
+    t_end: float | None = None
+    """End of the time slider (default: twice the training span's end)."""
+    width: int = 320
+    """Width in pixels of the rendered images."""
+    device: str = "auto"
+    """auto, cpu or cuda."""
+
+
+@dataclass
+class Segment:
+    """Segment a trained run's Gaussians into objects and parts by their learned motion.
+
+    K-means on the physics f_trd learned; stores the labels in the run folder, renders the masks at any
+    time (future included), and scores them where the scene has ground-truth masks
+    (docs/SEGMENTATION.md)."""
+
+    run: Path
+    """Run folder written by `tracegs train`."""
+    k: int | None = None
+    """Number of segments, the static group counted."""
+    auto_k: bool = False
+    """Choose K without labels (the smallest K whose segments all move rigidly; see --help of settings)."""
+    data: Path | None = None
+    """Scene folder (default: the one the run was trained on)."""
+    time: float | None = None
+    """Time of the mask images and the coloured PLY (default: the last training time; t > 1 extrapolates)."""
+    json: Path | None = None
+    """Also write the report here (it always goes to OUT/segment.json)."""
+    out: Path | None = None
+    """Folder of the images, PLY, video and report (default: RUN/segment, RUN/segment-flow)."""
+    video: bool = False
+    """Also write OUT/sweep.mp4: an orbit while time runs 0 -> 1.5, the segments painted over it."""
+    score: bool = True
+    """Score against the scene's ground truth when it has some."""
+    ignore_pixels: int = 0
+    """Leave ground-truth segments smaller than this many pixels out of the scores (OGC's
+    ignore_npoint_thresh; 0 scores every one)."""
+    settings: SegmentConfig = field(default_factory=SegmentConfig)
+    device: str = "auto"
+    """auto, cpu or cuda."""
+
+
+@dataclass
+class Metrics:
+    """PSNR, SSIM and LPIPS of one pair of images."""
+
+    image_a: tyro.conf.Positional[Path]
+    image_b: tyro.conf.Positional[Path]
+    json: Path | None = None
+    """Also write the numbers here."""
+    lpips: bool = True
+    """Compute LPIPS (VGG and AlexNet)."""
+    device: str = "auto"
+    """auto, cpu or cuda."""
+
+
+@dataclass
+class Bench:
+    """Run a benchmark: `raster`, `fields`, `methods` (TRACE, TRACE_4dgs, DefGS) or `ablations` (Table 4).
+
+    `--json docs/results/NAME.json` keeps the record for docs/RESULTS.md (`tracegs results`)."""
+
+    what: tyro.conf.Positional[Literal["raster", "fields", "methods", "ablations"]]
+    json: Path | None = None
+    """Write the results record here (e.g. docs/results/methods.json)."""
+    out: Path = Path("runs/bench")
+    """Working folder for scenes and runs (train benchmark)."""
+    preset: PresetName = "cpu-fast"
+    scenes: tuple[str, ...] = ("fan",)
+    """Synthetic scene names or scene folders (methods and ablations)."""
+    resolution: int = 128
+    """Image size of synthesised scenes."""
+    dynamic_iterations: int | None = None
+    """Override the preset's dynamic iterations (a shorter schedule for large tables)."""
+    variants: tuple[str, ...] = ()
+    """Subset of rows to run (e.g. TRACE DefGS, or dt=1 "no f_defo"); empty = all of the paper's.
+    The ablations also take our options beside the paper's switches (e.g. "no skip static")."""
+    report_only: bool = False
+    """Train nothing: tabulate the finished runs of these scenes and variants, skip the others."""
+    device: str = "auto"
+    """auto, cpu or cuda: where `raster` renders and `methods` / `ablations` train (auto: CUDA if present)."""
+    validation: float | None = None
+    """Choose settings without the test splits: train on this fraction of the training span (e.g. 0.8)
+    and score the training cameras' later frames (methods and ablations)."""
+
+
+@dataclass
+class Results:
+    """Make docs/RESULTS.md from the results records in docs/results/ (one table per benchmark)."""
+
+    json: Path = Path("docs/results")
+    """Folder of the results records (``*.json``)."""
+    out: Path = Path("docs/RESULTS.md")
+    """The page to write."""
