@@ -21,6 +21,7 @@ from tracegs.run import (
     load_config,
     load_run,
     load_tensors,
+    truncate_log,
 )
 from tracegs.run_compat import migrate_config
 from tracegs.train.trainer import Trainer
@@ -104,3 +105,31 @@ def test_an_old_config_with_a_removed_setting_in_use_is_refused_by_name():
     data["dynamic"]["rotation_consistency"] = 0.5
     with pytest.raises(ValueError, match="rotation_consistency"):
         migrate_config(data)
+
+
+def test_a_run_stores_absolute_paths_and_is_evaluated_from_another_folder(tmp_path, monkeypatch):
+    from tracegs.eval.protocol import evaluate_run
+
+    monkeypatch.chdir(tmp_path)
+    write_tiny_scene(Path("scene"))
+    cfg = make_config("tiny", data=Path("scene"), run=Path("runs/a"), device="cpu")
+    Trainer(cfg, progress=False).train()
+    saved = load_config(tmp_path / "runs" / "a" / "config.json")
+    assert saved.data == tmp_path / "scene" and saved.run == tmp_path / "runs" / "a"
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    report = evaluate_run(tmp_path / "runs" / "a", with_lpips=False, save_images=False, device="cpu")
+    assert report  # read the scene from where the run says it is
+
+
+def test_truncate_log_keeps_the_lines_up_to_the_step(tmp_path):
+    path = tmp_path / "log.jsonl"
+    lines = [json.dumps({"step": s, "loss": 1.0 / s}) for s in (1, 2, 3, 4)]
+    path.write_text("\n".join(lines) + '\n{"step": 5, "lo')  # a line cut by a kill
+    truncate_log(path, 2)
+    assert path.read_text() == "\n".join(lines[:2]) + "\n"
+    truncate_log(path, 0)
+    assert path.read_text() == ""
+    truncate_log(tmp_path / "none.jsonl", 3)  # no log yet: nothing to do
+    assert not (tmp_path / "none.jsonl").exists()

@@ -1,11 +1,13 @@
 """The run folder: what ``tracegs train`` writes and every other command reads.
 
 ``RUN/config.json``        the resolved config (plain JSON parsed into the dataclasses of ``config.py``)
-``RUN/checkpoint.pt``      the model, optimisers and RNG states (written atomically; a killed run resumes)
+``RUN/checkpoint.pt``      all that training goes on from (``train/checkpoint.py``; written atomically, a
+                           killed run resumes from it to the parameters an uninterrupted run ends with)
 ``RUN/extrapolation.pt``   the post-training state (``extrapolate.ExtrapolationState``), chosen once on
                            the training images when training ends; ``tracegs calibrate`` chooses it again
 ``RUN/summary.json``       wall time, iterations, Gaussians, per-part timings, what the calibration chose
 ``RUN/log.jsonl``          losses and timings every ``log_every`` steps
+``RUN/.lock``              held (``flock``) while a training writes the folder: "pid PID on HOST"
 
 Both ``.pt`` files hold tensors and plain data only and are read with ``torch.load(weights_only=True)``:
 opening someone else's run folder never executes code from it. Reading a run computes nothing.
@@ -13,8 +15,10 @@ opening someone else's run folder never executes code from it. Reading a run com
 
 from __future__ import annotations
 
+import contextlib
 import json
 import pickle
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,19 +29,57 @@ from .extrapolate import ExtrapolationState, has_policy
 from .models.gaussians import empty_like_params
 from .models.trace import TraceModel
 from .run_compat import migrate_config
-from .utils import atomic_torch_save, atomic_write_text, resolve_device
+from .utils import LockHeld, atomic_torch_save, atomic_write_text, exclusive_lock, resolve_device
 
-CONFIG, CHECKPOINT, EXTRAPOLATION, SUMMARY, LOG = (
+CONFIG, CHECKPOINT, EXTRAPOLATION, SUMMARY, LOG, LOCK = (
     "config.json",
     "checkpoint.pt",
     "extrapolation.pt",
     "summary.json",
     "log.jsonl",
+    ".lock",
 )
 
 
 class RunError(ValueError):
     """A run folder that cannot be read as it is; the message names the file and what to do."""
+
+
+class TrainingDiverged(RunError):
+    """Training went non-finite again after the last good state was restored with lower learning
+    rates; the run folder keeps that state's checkpoint."""
+
+
+@contextlib.contextmanager
+def lock_run(run: Path) -> Iterator[None]:
+    """Hold ``RUN/.lock`` while training writes the run folder; RunError when another training holds it.
+    The lock of a killed process is released by the operating system, so a killed run resumes."""
+    path = Path(run) / LOCK
+    try:
+        with exclusive_lock(path):
+            yield
+    except LockHeld as err:
+        raise RunError(
+            f"{run}: another training ({err.holder or 'another process'}) is writing this run folder "
+            f"(it holds {path}); wait for it to end, or train into a new --run folder"
+        ) from None
+
+
+def truncate_log(path: Path, step: int) -> None:
+    """Drop the lines of ``log.jsonl`` past ``step`` (and a half-written last line): those of steps that
+    a killed or restored run trains again, so that each step is logged once."""
+    path = Path(path)
+    if not path.is_file():
+        return
+    kept = []
+    for line in path.read_text().splitlines():
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(record, dict) and record.get("step", 0) <= step:
+            kept.append(line + "\n")
+    atomic_write_text(path, "".join(kept))
 
 
 # ----- config -------------------------------------------------------------------------------------
@@ -74,17 +116,41 @@ def load_tensors(path: Path, device: torch.device | str = "cpu") -> dict:
     """A ``.pt`` file of the run folder, read with ``weights_only=True``: tensors, numbers, strings and
     containers of them. Anything else (a pickled object, which could run code) is refused."""
     path = Path(path)
+    if path.is_file() and path.stat().st_size == 0:
+        raise RunError(f"{path}: empty file, not a checkpoint (a write was cut short?)")
     try:
         return torch.load(path, map_location=device, weights_only=True)
     except pickle.UnpicklingError as err:
-        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        first = _first_line(err)
         raise RunError(
             f"{path}: refused: it holds pickled Python objects other than tensors and plain data, which "
             f"could run code when loaded ({first}). tracegs never writes such objects; open run "
             "folders only from sources you trust."
         ) from None
     except (RuntimeError, EOFError, OSError) as err:
-        raise RunError(f"{path}: not a readable checkpoint ({str(err).splitlines()[0]})") from None
+        raise RunError(f"{path}: not a readable checkpoint ({_first_line(err)})") from None
+
+
+def _first_line(err: BaseException) -> str:
+    lines = str(err).strip().splitlines()
+    return lines[0] if lines else type(err).__name__
+
+
+CHECKPOINT_KEYS = ("model", "step", "train_seconds", "t_max")
+MODEL_KEYS = ("aabb", "frame_interval")
+
+
+def _check_checkpoint(ckpt, path: Path) -> dict:
+    """``ckpt`` if it has what a trained run's checkpoint holds; RunError naming the missing key."""
+    missing = [k for k in CHECKPOINT_KEYS if not isinstance(ckpt, dict) or k not in ckpt]
+    if not missing and isinstance(ckpt["model"], dict):
+        missing = [f"model.{k}" for k in MODEL_KEYS if k not in ckpt["model"]]
+    if missing:
+        raise RunError(
+            f"{path}: a checkpoint of another tracegs version, or not one of tracegs (no "
+            f"{missing[0]!r}); train into a new --run folder"
+        )
+    return ckpt
 
 
 def save_extrapolation(run: Path, state: ExtrapolationState) -> Path:
@@ -129,10 +195,16 @@ def _trained_model(cfg: TrainConfig, run: Path, device: str) -> tuple[TraceModel
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no checkpoint (has `tracegs train --run {run}` finished a step?)")
     dev = resolve_device(device)
-    ckpt = load_tensors(path, dev)
+    ckpt = _check_checkpoint(load_tensors(path, dev), path)
     state = ckpt["model"]
     model = TraceModel(cfg, gaussians_of(state), state["aabb"], float(state["frame_interval"])).to(dev)
-    model.load_state_dict(state)
+    try:
+        model.load_state_dict(state)
+    except (RuntimeError, KeyError, ValueError) as err:
+        raise RunError(
+            f"{path}: a checkpoint of another tracegs version, or of other settings than {run / CONFIG} "
+            f"({_first_line(err)}); train into a new --run folder"
+        ) from None
     # A run trained where bf16 paid (a CPU with AMX, as `cpu-fast` chooses) is rendered in fp32 on
     # CPUs without AMX: there bf16 is slower, and fp32 gives the fields' values exactly.
     model.bf16 = cfg.bf16 and cpu_has_amx_bf16()
@@ -181,7 +253,7 @@ def calibrate_run(
             raise ValueError("tracegs calibrate changes extrapolation settings only (extrapolation.*)")
         cfg = apply_overrides(cfg, settings)
     if data is not None:
-        cfg.data = Path(data)
+        cfg.data = Path(data).resolve()
     model, ckpt = _trained_model(cfg, run, device)
     state = calibrate(model, float(ckpt["t_max"]))
     save_extrapolation(run, state)

@@ -1,10 +1,13 @@
-"""Small shared helpers: device choice, atomic file writes, seeding."""
+"""Small shared helpers: device choice, atomic file writes, seeding and random states, file locks."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
+import socket
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +36,34 @@ def seed_everything(seed: int) -> torch.Generator:
     np.random.seed(seed)
     torch.manual_seed(seed)
     return torch.Generator().manual_seed(seed)
+
+
+def random_states(device: torch.device) -> dict:
+    """Every global random state a training step draws from (Python's, NumPy's, torch's CPU one and, on
+    CUDA, the device's), as tensors and plain data, for ``set_random_states`` to restore."""
+    name, keys, pos, has_gauss, cached = np.random.get_state()
+    states = {
+        "python": random.getstate(),
+        "numpy": {"keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos)}
+        | {"has_gauss": int(has_gauss), "cached_gaussian": float(cached)},
+        "torch": torch.get_rng_state(),
+    }
+    if device.type == "cuda":
+        states["cuda"] = torch.cuda.get_rng_state(device)
+    return states
+
+
+def set_random_states(states: dict, device: torch.device) -> None:
+    """Restore what ``random_states`` returned (states saved without NumPy's or CUDA's leave those as
+    they are)."""
+    random.setstate(states["python"])
+    torch.set_rng_state(states["torch"].cpu())  # a checkpoint loaded onto CUDA moved it there
+    if "numpy" in states:
+        n = states["numpy"]
+        keys = n["keys"].cpu().numpy().astype(np.uint32)
+        np.random.set_state(("MT19937", keys, n["pos"], n["has_gauss"], n["cached_gaussian"]))
+    if "cuda" in states and device.type == "cuda":
+        torch.cuda.set_rng_state(states["cuda"].cpu(), device)
 
 
 def _current_umask() -> int:
@@ -64,8 +95,61 @@ def atomic_write_text(path: Path, text: str) -> Path:
     return _atomic(path, lambda tmp: Path(tmp).write_text(text))
 
 
+def atomic_write_bytes(path: Path, data: bytes) -> Path:
+    return _atomic(path, lambda tmp: Path(tmp).write_bytes(data))
+
+
 def atomic_torch_save(obj, path: Path) -> Path:
     return _atomic(path, lambda tmp: torch.save(obj, tmp))
+
+
+def remove_temporaries(path: Path) -> list[Path]:
+    """Delete the temporary files that writes of ``path`` left behind when their process was killed
+    (``.NAME.*.tmp`` beside it); returns them. Only for a writer that holds the folder's lock: another
+    writer's file in flight would go too."""
+    path = Path(path)
+    stray = sorted(path.parent.glob(f".{path.name}.*.tmp"))
+    for tmp in stray:
+        tmp.unlink(missing_ok=True)
+    return stray
+
+
+class LockHeld(OSError):
+    """The lock is held by another process; ``holder`` is what it wrote into the lock file."""
+
+    def __init__(self, path: Path, holder: str):
+        super().__init__(f"{path}: locked by {holder or 'another process'}")
+        self.path, self.holder = path, holder
+
+
+@contextlib.contextmanager
+def exclusive_lock(path: Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``path`` (created, and holding "pid PID on HOST" while held) for the
+    block; ``LockHeld`` when another process holds it. The lock is ``flock``'s: the operating system
+    releases it when its process ends, however it ends, so the file of a killed process never blocks.
+    Where ``fcntl`` does not exist (Windows) nothing is locked."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not on Linux or macOS
+        yield
+        return
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a+") as f:
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            f.seek(0)
+            raise LockHeld(path, f.read().strip()) from None
+        f.seek(0)
+        f.truncate()
+        f.write(f"pid {os.getpid()} on {socket.gethostname()}\n")
+        f.flush()
+        try:
+            yield
+        finally:
+            f.truncate(0)
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 def atomic_write_image(path: Path, image: torch.Tensor | np.ndarray) -> Path:

@@ -288,7 +288,7 @@ def test_time_range_grows_in_equal_stages(tiny_scene, tmp_path, stages):
     assert trainer.time_limit(400) == trainer.time_limit(999) == pytest.approx(t_max)
     seen = {trainer.data.views[trainer._dynamic_view(0)].time for _ in range(200)}
     assert max(seen) <= t_max / stages + 1e-9 and min(seen) == 0.0
-    with pytest.raises(ValueError, match="time_growth_stages"):
+    with pytest.raises(ValueError, match="time.growth.stages"):
         Trainer(_cfg(tiny_scene, tmp_path / "bad", settings={"stage2.time_growth_stages": 0}), progress=False)
 
 

@@ -8,9 +8,9 @@ from torch import nn
 from .strategy import log_interp
 
 
-def gaussian_optimizers(params: nn.ParameterDict, cfg, extent: float) -> dict[str, torch.optim.Optimizer]:
-    """One Adam per Gaussian parameter (densification replaces rows of each independently)."""
-    lrs = {
+def gaussian_lrs(cfg, extent: float) -> dict[str, float]:
+    """The starting learning rate of every Gaussian parameter (``means`` then decays: ``means_lr``)."""
+    return {
         "means": cfg.means_lr * extent,
         "quats": cfg.quat_lr,
         "scales": cfg.scale_lr,
@@ -18,6 +18,11 @@ def gaussian_optimizers(params: nn.ParameterDict, cfg, extent: float) -> dict[st
         "sh0": cfg.sh0_lr,
         "shN": cfg.shN_lr,
     }
+
+
+def gaussian_optimizers(params: nn.ParameterDict, cfg, extent: float) -> dict[str, torch.optim.Optimizer]:
+    """One Adam per Gaussian parameter (densification replaces rows of each independently)."""
+    lrs = gaussian_lrs(cfg, extent)
     return {name: torch.optim.Adam([params[name]], lr=lrs[name], eps=1e-15) for name in params.keys()}
 
 

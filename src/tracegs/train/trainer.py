@@ -1,12 +1,17 @@
 """The training loop: stage 1 (static 3DGS at t = 0), stage 2 (TRACE or DefGS), checkpoints, resume,
 and the post-training calibration of the extrapolation state when the last step is done.
 
-What the run folder holds, and how it is read back: ``run.py``. A checkpoint is written atomically
-every ``checkpoint_every`` steps; a killed run resumes from it.
+What the run folder holds, and how it is read back: ``run.py``. Training is safe to leave running: a
+checkpoint (``checkpoint.py``) is written atomically every ``checkpoint_every`` steps, and a killed run
+started again with the same command ends as an uninterrupted one would; a non-finite loss, gradient or
+parameter restores the last good state with the learning rates lowered once, and stops the second time
+(``guard.py``); Ctrl-C ends the step, saves and raises KeyboardInterrupt; ``RUN/.lock`` refuses a second
+training into the folder while one runs.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import random
@@ -17,31 +22,49 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
-from ..config import TrainConfig, config_to_dict
+from ..config import TrainConfig, validate
 from ..data.cameras import scene_extent_from_cameras
 from ..data.dataset import ViewDataset, frame_interval
+from ..data.frames import DatasetError
 from ..data.scene import load_scene
 from ..extrapolate import calibrate
 from ..models.gaussians import create_gaussians, random_gaussians
 from ..models.trace import TraceModel
-from ..render.rendering import resolve_backend
 from ..run import (
     CHECKPOINT,
     CONFIG,
+    EXTRAPOLATION,
     LOG,
     SUMMARY,
-    changed_settings,
-    gaussians_of,
+    RunError,
+    TrainingDiverged,
     load_extrapolation,
     load_tensors,
+    lock_run,
     save_config,
     save_extrapolation,
-    save_tensors,
-    training_changes,
+    truncate_log,
 )
-from ..utils import atomic_write_text, resolve_device, seed_everything, synchronize
+from ..utils import atomic_write_text, remove_temporaries, resolve_device, seed_everything, synchronize
+from .checkpoint import (
+    Checkpoints,
+    check_resumable,
+    restore_trainer_state,
+    trainer_state,
+    training_fingerprint,
+)
+from .guard import NonFinite, check_parameters, check_step, interrupt_at_step_end
 from .losses import photometric_loss
-from .optim import field_lrs, field_optimizer, gaussian_optimizers, means_lr, set_group_lrs, set_lr
+from .optim import (
+    field_lrs,
+    field_optimizer,
+    gaussian_lrs,
+    gaussian_optimizers,
+    means_lr,
+    set_group_lrs,
+    set_lr,
+)
+from .report import describe, report_step, stage, summary
 from .scene_frame import default_aabb, field_frame
 from .strategy import DefaultStrategy
 
@@ -58,22 +81,27 @@ def initial_gaussians(cfg: TrainConfig, aabb: torch.Tensor, device) -> torch.nn.
 
 
 class Trainer:
-    """Trains one run; ``Trainer(cfg).train()`` is what ``tracegs train`` does."""
+    """Trains one run; ``Trainer(cfg).train()`` is what ``tracegs train`` does. A run folder that holds a
+    checkpoint is resumed from it (with the same settings and the same training images)."""
 
     def __init__(self, cfg: TrainConfig, progress: bool = True):
+        validate(cfg)
+        # the run records where its data is absolutely: commands started elsewhere find it
+        cfg = dataclasses.replace(cfg, data=Path(cfg.data).resolve(), run=Path(cfg.run).resolve())
         self.cfg, self.progress = cfg, progress
-        if cfg.stage2.time_growth_stages < 1:
-            raise ValueError(f"stage2.time_growth_stages must be >= 1, got {cfg.stage2.time_growth_stages}")
         self.device = resolve_device(cfg.device)
         self.generator = seed_everything(cfg.seed)
-        self.run = Path(cfg.run)
+        self.run = cfg.run
+        if self.run.exists() and not self.run.is_dir():
+            raise RunError(f"{self.run}: not a folder; --run names the folder a run is written to")
         if cfg.t_train_end is not None:
             self.t_train_end = cfg.t_train_end
         else:  # the dataset's own value (tracegs synth writes it), else every training frame
             self.t_train_end = load_scene(cfg.data, "train", cfg.downscale).t_train_end
         self.data = ViewDataset(cfg.data, "train", cfg.downscale, t_max=self.t_train_end, device=self.device)
         if len(self.data) == 0:
-            raise ValueError(f"{cfg.data}: no training frames with time <= {self.t_train_end}")
+            raise DatasetError(f"{cfg.data}: no training frames with time <= {self.t_train_end}")
+        self.fingerprint = training_fingerprint(self.data)
         times = self.data.times
         self.t_max = float(times.max())
         self.dt_frame = frame_interval(times, self.data.scene.fps)
@@ -89,8 +117,12 @@ class Trainer:
         self.strategy = DefaultStrategy(cfg.densify, self.extent, cfg.total_iterations)
         self.strategy_state = self.strategy.initialize_state()
         self.step, self.train_seconds = 0, 0.0
+        self.lr_scale = 1.0  # lowered by the NaN guard
+        self.restorations: list[dict] = []  # what the NaN guard restored: {"step", "to_step", "what"}
         self.extrapolation = None  # the post-training state (``extrapolate.calibrate``), once trained
         self.timings: dict[str, float] = defaultdict(float)
+        self.checkpoints = Checkpoints(self.run / CHECKPOINT)
+        self._in_step = False  # while a step runs: an interrupt then leaves half a step
         if (self.run / CHECKPOINT).is_file():
             self._resume(self.run / CHECKPOINT)
 
@@ -145,6 +177,22 @@ class Trainer:
         return max(self.strategy.refine_stop, self.cfg.static_iterations + growth)
 
     # ----- one step -------------------------------------------------------------------------------
+    def _set_lrs(self, static: bool, step: int, dyn_step: int) -> None:
+        """This step's learning rates (the schedules of ``optim.py``) times the NaN guard's ``lr_scale``."""
+        cfg, scale = self.cfg, self.lr_scale
+        lrs = gaussian_lrs(cfg.optim, self.extent)
+        lrs["means"] = means_lr(cfg.optim, self.extent, step, cfg.total_iterations)
+        for name, opt in self.optimizers.items():
+            set_lr(opt, lrs[name] * scale)
+        if not static:
+            fields = field_lrs(cfg.optim, self.extent, dyn_step, cfg.dynamic_iterations)
+            set_group_lrs(self.field_opt, {k: v * scale for k, v in fields.items()})
+
+    def _zero_grads(self) -> None:
+        for opt in [*self.optimizers.values(), self.field_opt]:
+            if opt is not None:
+                opt.zero_grad(set_to_none=True)
+
     def sh_degree(self) -> int:
         return min(self.cfg.sh_degree, self.step // max(self.cfg.sh_degree_interval, 1))
 
@@ -155,13 +203,21 @@ class Trainer:
         return time.perf_counter()
 
     def train_step(self) -> dict[str, float]:
+        """One step; NonFinite (with nothing updated) when the loss or a gradient is not finite."""
+        self._in_step = True
+        try:
+            stats = self._step()
+        except NonFinite:
+            self._in_step = False
+            raise
+        self._in_step = False
+        return stats
+
+    def _step(self) -> dict[str, float]:
         cfg, step = self.cfg, self.step
         static = step < cfg.static_iterations or cfg.method == "static"
         dyn_step = step - cfg.static_iterations
-        total = cfg.total_iterations
-        set_lr(self.optimizers["means"], means_lr(cfg.optim, self.extent, step, total))
-        if not static:
-            set_group_lrs(self.field_opt, field_lrs(cfg.optim, self.extent, dyn_step, cfg.dynamic_iterations))
+        self._set_lrs(static, step, dyn_step)
 
         t_start = self._clock()
         if static:
@@ -200,6 +256,11 @@ class Trainer:
                 losses["loss"] = losses["loss"] + value
         t_render = self._clock()
         losses["loss"].backward()
+        try:
+            check_step(losses["loss"], self.model.parameters(), step)
+        except NonFinite:
+            self._zero_grads()
+            raise
         t_backward = self._clock()
         for opt in self.optimizers.values():
             opt.step()
@@ -225,117 +286,111 @@ class Trainer:
 
     # ----- loop -------------------------------------------------------------------------------------
     def train(self) -> dict:
-        cfg = self.cfg
+        """Train the remaining steps (all of them for a new run), calibrate the extrapolation state and
+        write the summary. Holds ``RUN/.lock`` throughout: a second training into the folder is refused."""
         self.run.mkdir(parents=True, exist_ok=True)
-        save_config(cfg, self.run / CONFIG)
-        total = cfg.total_iterations
-        if self.progress:
-            tqdm.write(self.describe())
-        bar = tqdm(total=total, initial=self.step, disable=not self.progress, desc=f"train {cfg.method}")
+        with lock_run(self.run):
+            for name in (CHECKPOINT, CONFIG, EXTRAPOLATION, LOG, SUMMARY):  # of a killed process's writes
+                remove_temporaries(self.run / name)
+            save_config(self.cfg, self.run / CONFIG)
+            truncate_log(self.run / LOG, self.step)  # the steps past the checkpoint are trained again
+            if self.progress:
+                tqdm.write(self.describe())
+            self.checkpoints.keep(trainer_state(self))
+            ran = self._train_steps()
+            if not ran:  # a finished run: its checkpoint takes the config of this call
+                self.save()
+            if self.extrapolation is None:  # (a finished run resumed with the same settings keeps its own)
+                self.extrapolation = calibrate(self.model, self.t_max, self.extent)
+                save_extrapolation(self.run, self.extrapolation)
+            summary = self.summary()
+            atomic_write_text(self.run / SUMMARY, json.dumps(summary, indent=2))
+        return summary
+
+    def _train_steps(self) -> bool:
+        """The steps up to ``total_iterations``, each checkpoint and the last one saved; whether any ran."""
+        cfg, total, start = self.cfg, self.cfg.total_iterations, self.step
+        self._in_step = False
+        bar = tqdm(total=total, initial=self.step, disable=not self.progress, desc=f"train {stage(self)}")
         log = (self.run / LOG).open("a")
         try:
-            while self.step < total:
-                stats = self.train_step()
-                bar.update(1)
-                if self.step % cfg.log_every == 0 or self.step == total:
-                    n = self.model.gaussians["means"].shape[0]
-                    bar.set_postfix(loss=f"{stats['loss']:.4f}", gaussians=n)
-                    seconds = round(self.train_seconds, 2)  # training time so far, resumed runs included
-                    log.write(
-                        json.dumps({"step": self.step, "gaussians": n, "seconds": seconds, **stats}) + "\n"
-                    )
-                    log.flush()
-                if self.step % cfg.checkpoint_every == 0 and self.step < total:
-                    self.save()
+            with interrupt_at_step_end() as interrupt:
+                while self.step < total:
+                    try:
+                        stats = self.train_step()
+                        report_step(self, stats, bar, log)
+                        if self.step % cfg.checkpoint_every == 0 or self.step == total:
+                            check_parameters(self.model.parameters(), self.step)
+                            self.save()
+                    except NonFinite as err:
+                        log.close()
+                        self._restore_after(err)
+                        log = (self.run / LOG).open("a")
+                        bar.reset(total)
+                        bar.update(self.step)
+                    if interrupt.requested:
+                        raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            self._save_interrupted()
+            raise
         finally:
             bar.close()
             log.close()
-        self.save()  # the last step (never saved in the loop) is kept if the calibration fails
-        if self.extrapolation is None:  # (a finished run resumed with the same settings keeps its own)
-            self.extrapolation = calibrate(self.model, self.t_max, self.extent)
-            save_extrapolation(self.run, self.extrapolation)
-        summary = self.summary()
-        atomic_write_text(self.run / SUMMARY, json.dumps(summary, indent=2))
-        return summary
+        return self.step > start
+
+    def _restore_after(self, err: NonFinite) -> None:
+        """The NaN guard: back to the last good state with the learning rates times ``optim.nan_lr_factor``;
+        the second time, that state is saved and ``TrainingDiverged`` raised."""
+        factor = self.cfg.optim.nan_lr_factor
+        lr_scale, restorations, seconds = self.lr_scale, self.restorations, self.train_seconds
+        restore_trainer_state(self, self.checkpoints.last_good(self.device))
+        self.train_seconds = seconds  # the time spent is spent
+        truncate_log(self.run / LOG, self.step)
+        if restorations:
+            self.save()
+            first = restorations[0]
+            raise TrainingDiverged(
+                f"{self.run}: training diverged: {err} after the {first['what']} at step {first['step']} "
+                f"had restored step {first['to_step']} with the learning rates x{factor}; "
+                f"{self.run / CHECKPOINT} keeps step {self.step}, the last good state"
+            )
+        self.lr_scale = lr_scale * factor
+        self.restorations = [*restorations, {"step": err.step, "to_step": self.step, "what": err.what}]
+        if self.progress:
+            tqdm.write(f"{err}: restored step {self.step}, learning rates x{factor}")
+
+    def _save_interrupted(self) -> None:
+        """The checkpoint of an interrupted run: the current step's, or the last good state where the
+        interrupt came in the middle of a step or the parameters are not finite."""
+        held = f"step {self.step}"
+        try:
+            if self._in_step:
+                raise NonFinite(self.step, "step")  # half a step: neither this one nor the next
+            check_parameters(self.model.parameters(), self.step)
+            self.save()
+        except NonFinite:
+            self.checkpoints.write_good()
+            held = "the last good state"
+        finally:
+            self._in_step = False
+        if self.progress:
+            tqdm.write(f"interrupted: {self.run / CHECKPOINT} holds {held}; the same command resumes")
 
     def describe(self) -> str:
         """What this run trains, in a line or two (printed when training starts)."""
-        cfg, cam = self.cfg, self.data.views[0].camera
-        frame = "world frame" if self.model.fields_see_world else "cameras' frame"
-        text = (
-            f"{cfg.method} ({cfg.preset}) on {len(self.data)} images of {cam.width}x{cam.height} px with "
-            f"t <= {self.t_max:.3g}, {cfg.total_iterations} steps on {self.device} "
-            f"({resolve_backend(cfg.backend, self.device)} rasteriser, fields in the {frame})"
-        )
-        pixels = cam.width * cam.height
-        if self.device.type == "cpu" and cfg.preset == "cpu-fast" and pixels > 4 * 128 * 128:
-            factor = math.ceil(math.sqrt(pixels / (128 * 128)))
-            text += (
-                f"\n  note: {cam.width}x{cam.height} is {pixels / (128 * 128):.0f}x the pixels of the 128 px "
-                f"cpu-fast is made for, and the rasteriser's time grows with them; --downscale {factor} "
-                "trains at about 128 px"
-            )
-        return text
+        return describe(self)
 
     def summary(self) -> dict:
-        steps, state = max(self.step, 1), self.extrapolation
-        return {
-            "method": self.cfg.method,
-            "preset": self.cfg.preset,
-            "scene": str(self.cfg.data),
-            "iterations": self.step,
-            "gaussians": int(self.model.gaussians["means"].shape[0]),
-            "train_seconds": round(self.train_seconds, 2),
-            "t_max": self.t_max,
-            "freeze_threshold": state.freeze_threshold if state else None,
-            "freeze_psnr": state.report.get("freeze_psnr", {}) if state else {},
-            "static_fraction": self.static_fraction,
-            "free_bodies": state.report.get("free_bodies", []) if state else [],
-            "ms_per_iteration": {k: round(1000 * v / steps, 2) for k, v in self.timings.items()},
-            "device": str(self.device),
-            "rasteriser": resolve_backend(self.cfg.backend, self.device),
-        }
+        return summary(self)
 
     # ----- checkpoints -----------------------------------------------------------------------------
     def save(self) -> Path:
-        ckpt = {
-            "step": self.step,
-            "train_seconds": self.train_seconds,
-            "timings": dict(self.timings),
-            "config": config_to_dict(self.cfg),
-            "t_max": self.t_max,
-            "static_mask": self.model.static_mask,
-            "model": self.model.state_dict(),
-            "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
-            "field_optimizer": self.field_opt.state_dict() if self.field_opt is not None else None,
-            "rng": {"torch": torch.get_rng_state(), "python": random.getstate()},
-        }
-        return save_tensors(ckpt, self.run / CHECKPOINT)
+        """Write the checkpoint (atomically) and keep it in memory as the last good state."""
+        return self.checkpoints.save(trainer_state(self))
 
     def _resume(self, path: Path) -> None:
         ckpt = load_tensors(path, self.device)
-        try:
-            changed = changed_settings(ckpt.get("config", {}), self.cfg)
-        except ValueError as err:
-            raise ValueError(f"{path}: {err}; train into a new --run folder") from err
-        if training_changes(changed):
-            raise ValueError(
-                f"{path}: the checkpoint was trained with other settings ({', '.join(changed)}); "
-                "resume with the same settings, or train into a new --run folder"
-            )
-        self.model.gaussians = gaussians_of(ckpt["model"])
-        self.model.load_state_dict(ckpt["model"])
-        self.optimizers = gaussian_optimizers(self.model.gaussians, self.cfg.optim, self.extent)
-        for k, o in self.optimizers.items():
-            o.load_state_dict(ckpt["optimizers"][k])
-        if self.field_opt is not None and ckpt["field_optimizer"] is not None:
-            self.field_opt.load_state_dict(ckpt["field_optimizer"])
-        self.step, self.train_seconds = ckpt["step"], ckpt["train_seconds"]
-        self.model.set_static_mask(ckpt.get("static_mask"))
+        changed = check_resumable(ckpt, self.cfg, self.fingerprint, path)
+        restore_trainer_state(self, ckpt)
         if not changed:  # else calibrated again with the new settings when the steps are done
             self.extrapolation = load_extrapolation(self.run, self.device)
-        if self.model.static_mask is not None:
-            self.static_fraction = float(self.model.static_mask.float().mean())
-        self.timings.update(ckpt.get("timings", {}))
-        torch.set_rng_state(ckpt["rng"]["torch"].cpu())  # map_location moved it to the run's device
-        random.setstate(ckpt["rng"]["python"])
