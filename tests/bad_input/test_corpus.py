@@ -41,10 +41,14 @@ def run_cli(argv: list[str], capsys) -> tuple[int, str, str]:
     return code, out, err
 
 
-def assert_clean_error(argv, capsys, where: str, keyword: str) -> str:
-    """Run ``argv``; it must fail with one stderr line naming ``where`` and saying ``keyword``."""
+def assert_clean_error(argv, capsys, where: str, keyword: str, after_progress: bool = False) -> str:
+    """Run ``argv``; it must fail with one stderr line naming ``where`` and saying ``keyword`` (with
+    ``after_progress``: after the progress bar of the steps that ran, and nothing else)."""
     code, _, err = run_cli(argv, capsys)
     lines = err.strip().split("\n")
+    if after_progress:
+        assert all("%|" in line for line in lines[:-1]), err
+        lines = lines[-1:]
     assert code == 1, f"exit status {code}, stderr: {err}"
     assert "Traceback" not in err
     assert len(lines) == 1, err
@@ -264,6 +268,12 @@ def test_a_bad_training_setting_is_one_line_naming_the_flag(
     argv = ["train", "--data", pristine, "--run", tmp_path / "run", "--preset", "tiny", "--device", "cpu"]
     assert_clean_error(argv + flags, capsys, where, keyword)
     assert not (tmp_path / "run" / "checkpoint.pt").exists()
+
+
+def test_a_training_that_prunes_every_gaussian_stops_with_one_line(pristine, tmp_path, capsys):
+    argv = ["train", "--data", pristine, "--run", tmp_path / "run", "--preset", "tiny", "--device", "cpu"]
+    flags = ["--densify.prune-opacity", "0.99"]  # every Gaussian starts less opaque than that
+    assert_clean_error(argv + flags, capsys, "--densify.prune-opacity", "prune every Gaussian", True)
 
 
 def _plant_pickle(run: Path) -> None:

@@ -114,6 +114,13 @@ class DefaultStrategy:
         if step > cfg.reset_every:
             prune |= torch.exp(params["scales"]).max(dim=-1).values > cfg.prune_scale3d * self.scene_extent
         n_prune = int(prune.sum())
+        if n_prune == len(prune):
+            raise ValueError(
+                f"densification at step {step} would prune every Gaussian (opacity below "
+                f"--densify.prune-opacity {cfg.prune_opacity:g}, or larger than --densify.prune-scale3d "
+                f"{cfg.prune_scale3d:g} of the scene extent): nothing is left to train; check that the "
+                "training images show the scene, or lower those settings"
+            )
         if n_prune:
             remove(params, optimizers, prune)
         state["grad2d"] = state["count"] = None
