@@ -4,7 +4,7 @@
   the rigid motion of the part it lies on; its predicted position at each future time is compared with
   where that motion takes it.
 - Angular velocity: the w each part's Gaussians turn at from t_max (median vector; f_trd's, or the
-  free body's where one moves them) against the closed form (w0 + alpha t) * axis: the angle between
+  free body's where one moves them) against the closed form's angular velocity at that time: the angle between
   axes and the relative magnitude error; and
   (``omega_over_span``) the same at several query times of the training span, which shows where in
   time f_trd is accurate (the extrapolation starts from its value at the handover time).
@@ -193,8 +193,9 @@ def _motions(data: Path) -> list[dict]:
 
 
 def _compare_omega(learned: np.ndarray, motion: dict, t: float) -> dict:
-    axis = np.asarray(motion["axis"], dtype=np.float64)
-    gt = (motion["angular_velocity"] + motion["angular_acceleration"] * t) * axis
+    from ..data.synth.motion import motion_from_record
+
+    gt = np.asarray(motion_from_record(motion).angular_velocity_at(t), dtype=np.float64).reshape(3)
     gt_mag, mag = float(np.linalg.norm(gt)), float(np.linalg.norm(learned))
     out = {"omega_learned": learned.tolist(), "omega_gt": gt.tolist(), "omega_abs_error": abs(mag - gt_mag)}
     if gt_mag > 1e-6:

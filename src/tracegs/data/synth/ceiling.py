@@ -81,12 +81,11 @@ class SceneFolder:
             make_sensors(c2w, rig.camera_angle_x, s["resolution"], self.spp)[0] for c2w in rig.c2w
         ]
         self.times = np.arange(self.frames) / (self.frames - 1)
-        self.turning = [p for p, m in enumerate(self.motions) if m.angular_velocity or m.angular_acceleration]
-        self.static = [
-            p
-            for p, m in enumerate(self.motions)
-            if np.allclose(transforms_at([m], self.times)[:, 0], np.eye(4))
+        transforms = transforms_at(self.motions, self.times)  # [F, P, 4, 4]
+        self.turning = [
+            p for p in range(len(self.motions)) if not np.allclose(transforms[:, p, :3, :3], np.eye(3))
         ]
+        self.static = [p for p in range(len(self.motions)) if np.allclose(transforms[:, p], np.eye(4))]
         self.names = ["background"] + [p.name for p in self.spec.parts]
 
     def stored(self, c: int, f: int) -> tuple[np.ndarray, np.ndarray]:

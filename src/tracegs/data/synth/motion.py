@@ -10,6 +10,11 @@ x0 is a point of the part in the rest pose (t = 0), so every transform is the id
 The rotation is about a line through ``pivot`` fixed in the part, which the translation carries
 along (a door on a drifting satellite, a ball spinning about its own moving centre).
 
+Parts under forces that are not constant (a pendulum, a spring, a friction stop, a bounce, a part
+carried by another) move by the closed forms of :mod:`.varying`; every motion follows the
+:class:`~.kinematics.Motion` protocol (``transform``, ``angular_velocity_at``, ``record``) and
+:func:`motion_from_record` reads any of them back from ``gt/motion.json``.
+
 # T: times, P: parts
 """
 
@@ -20,6 +25,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+
+from .kinematics import Motion, axis_angle_to_matrix, from_fields
+from .varying import CLOSED_FORMS, Carried
 
 FORMULA = "theta(t) = w*t + alpha*t^2/2; x(t) = R(axis, theta(t)) (x0 - pivot) + pivot + v*t + a*t^2/2"
 
@@ -49,6 +57,19 @@ class RigidMotion:
             raise ValueError(f"rotation axis must be a non-zero vector, got {self.axis}")
         object.__setattr__(self, "axis", tuple(float(x) / n for x in self.axis))
 
+    def transform(self, t) -> np.ndarray:
+        """[..., 4, 4] rest-pose -> world at times ``t`` [...] (:func:`motion_transform`)."""
+        return motion_transform(self, t)
+
+    def angular_velocity_at(self, t) -> np.ndarray:
+        """[..., 3] (w + alpha t) axis."""
+        rate = self.angular_velocity + self.angular_acceleration * np.asarray(t, dtype=np.float64)
+        return rate[..., None] * np.asarray(self.axis)
+
+    def record(self) -> dict:
+        """``type`` (the label ``kind``) and the fields."""
+        return {"type": self.kind, **_plain(asdict(self))}
+
 
 def rotation_angle(motion: RigidMotion, t: np.ndarray) -> np.ndarray:
     """theta(t) = w t + alpha t^2 / 2, same shape as ``t``."""
@@ -60,14 +81,6 @@ def pivot_displacement(motion: RigidMotion, t: np.ndarray) -> np.ndarray:
     """[..., 3] v t + a t^2 / 2."""
     t = np.asarray(t, dtype=np.float64)[..., None]
     return np.asarray(motion.linear_velocity) * t + 0.5 * np.asarray(motion.linear_acceleration) * t**2
-
-
-def axis_angle_to_matrix(axis, angle: np.ndarray) -> np.ndarray:
-    """[..., 3, 3] Rodrigues rotation about the unit ``axis`` by ``angle`` [...]."""
-    a = np.asarray(axis, dtype=np.float64)
-    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    angle = np.asarray(angle, dtype=np.float64)[..., None, None]
-    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
 
 
 def motion_transform(motion: RigidMotion, t) -> np.ndarray:
@@ -82,14 +95,19 @@ def motion_transform(motion: RigidMotion, t) -> np.ndarray:
     return out
 
 
-def transforms_at(motions: list[RigidMotion], t) -> np.ndarray:
+def transforms_at(motions: list[Motion], t) -> np.ndarray:
     """[P, 4, 4] for a scalar ``t``, [T, P, 4, 4] for times [T]."""
-    return np.stack([motion_transform(m, t) for m in motions], axis=-3)
+    return np.stack([m.transform(t) for m in motions], axis=-3)
 
 
-def motion_record(name: str, part_id: int, motion: RigidMotion) -> dict:
+def angular_velocities_at(motions: list[Motion], t) -> np.ndarray:
+    """[P, 3] world angular velocities for a scalar ``t``, [T, P, 3] for times [T]."""
+    return np.stack([m.angular_velocity_at(t) for m in motions], axis=-2)
+
+
+def motion_record(name: str, part_id: int, motion: Motion) -> dict:
     """One part's entry in ``gt/motion.json``."""
-    return {"name": name, "id": part_id, "type": motion.kind, **_plain(asdict(motion))}
+    return {"name": name, "id": part_id, **motion.record()}
 
 
 def _plain(d: dict) -> dict:
@@ -98,14 +116,19 @@ def _plain(d: dict) -> dict:
     return d
 
 
-def motion_from_record(record: dict) -> RigidMotion:
-    """Inverse of :func:`motion_record` (unknown keys, such as notes, are ignored)."""
-    fields = RigidMotion.__dataclass_fields__
-    kwargs = {k: (tuple(v) if isinstance(v, list) else v) for k, v in record.items() if k in fields}
-    return RigidMotion(kind=record.get("type", "static"), **kwargs)
+def motion_from_record(record: dict) -> Motion:
+    """Inverse of :func:`motion_record` and of every motion's ``record`` (unknown keys, such as notes
+    and derived values, are ignored); a ``type`` of no other motion is a :class:`RigidMotion` label."""
+    kind = record.get("type", "static")
+    if kind == Carried.kind:
+        parent, child = motion_from_record(record["parent"]), motion_from_record(record["child"])
+        return Carried(parent, child, record.get("parent_part"))
+    if kind in CLOSED_FORMS:
+        return from_fields(CLOSED_FORMS[kind], record)
+    return from_fields(RigidMotion, record, kind=kind)
 
 
-def load_motions(source) -> list[RigidMotion]:
+def load_motions(source) -> list[Motion]:
     """Motions ordered by part id from an output folder, its ``gt`` folder, a ``motion.json`` path or
     the parsed json dict."""
     if isinstance(source, dict):
@@ -133,3 +156,9 @@ def part_transforms(out_or_motion_json, t) -> np.ndarray:
     Index p holds the part whose mask id is p + 1 (0 is the background).
     """
     return transforms_at(load_motions(out_or_motion_json), t)
+
+
+def part_angular_velocities(out_or_motion_json, t) -> np.ndarray:
+    """World angular velocity of every part at time(s) ``t`` from the closed form: [P, 3] for a float,
+    [T, P, 3] for times [T]; the same sources and part order as :func:`part_transforms`."""
+    return angular_velocities_at(load_motions(out_or_motion_json), t)

@@ -10,56 +10,14 @@ cameras and the render noise), so a scene name always means the same object.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
 from . import geometry as g
 from . import textures as tx
 from .motion import RigidMotion
-
-TEXTURE_SIZE = 256
-
-
-@dataclass(frozen=True)
-class Piece:
-    """A mesh with one texture; a part is made of one or more pieces moving together."""
-
-    mesh: g.Mesh
-    texture: np.ndarray  # [H, W, 3] linear RGB float32
-
-
-@dataclass(frozen=True)
-class Part:
-    """A rigid part: its rest-pose pieces and its motion. Mask id = position in the scene + 1."""
-
-    name: str
-    pieces: tuple[Piece, ...]
-    motion: RigidMotion
-
-
-@dataclass(frozen=True)
-class SceneSpec:
-    name: str
-    description: str
-    parts: tuple[Part, ...]
-
-    def part_mesh(self, index: int) -> g.Mesh:
-        """All pieces of part ``index`` as one mesh (for sampling and bounds)."""
-        return g.merge(*(p.mesh for p in self.parts[index].pieces))
-
-
-def _rng(name: str, k: int) -> np.random.Generator:
-    """Fixed generator per scene and texture, so textures never depend on the caller's seed."""
-    return np.random.default_rng([sum(map(ord, name)), k])
-
-
-def _rot(axis, angle) -> np.ndarray:
-    return g.rotation_matrix(axis, angle)
-
-
-def _place(mesh: g.Mesh, rotation=None, translation=(0.0, 0.0, 0.0)) -> g.Mesh:
-    return g.transform(mesh, g.affine(rotation, translation))
+from .parts import TEXTURE_SIZE, Part, Piece, SceneSpec, place, rot, scene_rng
+from .scenes_varying import bounce, brake, pendulum, spring, turntable
 
 
 def _rounded_paddle(r0: float, r1: float, width: float, n: int = 10) -> np.ndarray:
@@ -75,12 +33,12 @@ def _rounded_paddle(r0: float, r1: float, width: float, n: int = 10) -> np.ndarr
 
 def fan() -> SceneSpec:
     """A table fan pointing up: static base, pole and motor; three pitched blades spin about z."""
-    r = lambda k: _rng("fan", k)  # noqa: E731
+    r = lambda k: scene_rng("fan", k)  # noqa: E731
     body_tex = tx.with_noise(tx.checker(TEXTURE_SIZE, 8, (0.20, 0.27, 0.40), (0.45, 0.55, 0.70)), r(0), 0.3)
     base_tex = tx.with_noise(tx.stripes(TEXTURE_SIZE, 10, (0.30, 0.30, 0.32), (0.60, 0.60, 0.58)), r(1), 0.3)
-    base = _place(g.cylinder(0.42, 0.08), translation=(0, 0, -0.71))
-    pole = _place(g.cylinder(0.05, 0.62, segments=24), translation=(0, 0, -0.36))
-    motor = _place(g.cylinder(0.14, 0.2), translation=(0, 0, 0.05))
+    base = place(g.cylinder(0.42, 0.08), translation=(0, 0, -0.71))
+    pole = place(g.cylinder(0.05, 0.62, segments=24), translation=(0, 0, -0.36))
+    motor = place(g.cylinder(0.14, 0.2), translation=(0, 0, 0.05))
     body = Part(
         "body",
         (Piece(base, base_tex), Piece(g.merge(pole, motor), body_tex)),
@@ -94,11 +52,11 @@ def fan() -> SceneSpec:
         tex = tx.with_noise(tx.stripes(TEXTURE_SIZE, 6, c0, c1, along_u=True, duty=0.35), r(2 + i), 0.2)
         blade = g.extrude(outline, 0.025)
         # Pitch about the blade's long axis, then spread the three blades 120 degrees apart.
-        blade = _place(blade, _rot((1, 0, 0), np.deg2rad(18)))
-        blade = _place(blade, _rot((0, 0, 1), 2 * np.pi * i / 3), (0, 0, 0.21))
+        blade = place(blade, rot((1, 0, 0), np.deg2rad(18)))
+        blade = place(blade, rot((0, 0, 1), 2 * np.pi * i / 3), (0, 0, 0.21))
         pieces.append(Piece(blade, tex))
     hub_tex = tx.sectors(TEXTURE_SIZE, [(0.95, 0.80, 0.15), (0.15, 0.15, 0.18)] * 3)
-    pieces.append(Piece(_place(g.cylinder(0.11, 0.09), translation=(0, 0, 0.21)), hub_tex))
+    pieces.append(Piece(place(g.cylinder(0.11, 0.09), translation=(0, 0, 0.21)), hub_tex))
     blades = Part("blades", tuple(pieces), RigidMotion("rotation", axis=(0, 0, 1), angular_velocity=2.0))
     return SceneSpec("fan", "blades spin at constant angular velocity about z; body static", (body, blades))
 
@@ -106,7 +64,7 @@ def fan() -> SceneSpec:
 def foldingchair() -> SceneSpec:
     """A chair on a static frame; seat, backrest and a side tray swing about three different hinges,
     each with constant angular acceleration."""
-    r = lambda k: _rng("foldingchair", k)  # noqa: E731
+    r = lambda k: scene_rng("foldingchair", k)  # noqa: E731
     metal = tx.with_noise(tx.checker(TEXTURE_SIZE, 6, (0.18, 0.18, 0.20), (0.42, 0.42, 0.45)), r(0), 0.3)
     legs = [g.box((0.05, 0.05, 0.68), (sx * 0.28, sy * 0.28, -0.41)) for sx in (-1, 1) for sy in (-1, 1)]
     rails = [g.box((0.04, 0.6, 0.04), (sx * 0.28, 0, -0.55)) for sx in (-1, 1)]
@@ -157,7 +115,7 @@ def foldingchair() -> SceneSpec:
 def satellite() -> SceneSpec:
     """A box satellite drifting slowly; two solar wings and a hatch door open about three hinges
     that the drift carries along."""
-    r = lambda k: _rng("satellite", k)  # noqa: E731
+    r = lambda k: scene_rng("satellite", k)  # noqa: E731
     drift = (0.12, 0.08, 0.06)
     foil = tx.with_noise(tx.checker(TEXTURE_SIZE, 12, (0.80, 0.60, 0.15), (0.95, 0.82, 0.40)), r(0), 0.45)
     dish_tex = tx.sectors(TEXTURE_SIZE, [(0.92, 0.92, 0.92), (0.70, 0.72, 0.78)] * 4, rim=(0.3, 0.3, 0.35))
@@ -165,8 +123,8 @@ def satellite() -> SceneSpec:
         "body",
         (
             Piece(g.box((0.5, 0.5, 0.5)), foil),
-            Piece(_place(g.cylinder(0.16, 0.04), translation=(0.0, 0.0, 0.33)), dish_tex),
-            Piece(_place(g.cylinder(0.03, 0.08, segments=16), translation=(0.0, 0.0, 0.27)), dish_tex),
+            Piece(place(g.cylinder(0.16, 0.04), translation=(0.0, 0.0, 0.33)), dish_tex),
+            Piece(place(g.cylinder(0.03, 0.08, segments=16), translation=(0.0, 0.0, 0.27)), dish_tex),
         ),
         RigidMotion("translation", linear_velocity=drift),
     )
@@ -219,7 +177,7 @@ def satellite() -> SceneSpec:
 
 def fallingball() -> SceneSpec:
     """A spinning ball thrown over a static slab: projectile under gravity plus constant spin."""
-    r = lambda k: _rng("fallingball", k)  # noqa: E731
+    r = lambda k: scene_rng("fallingball", k)  # noqa: E731
     slab_tex = tx.with_noise(tx.checker(TEXTURE_SIZE, 8, (0.35, 0.35, 0.38), (0.80, 0.80, 0.78)), r(0), 0.25)
     slab = Part(
         "ground", (Piece(g.box((1.3, 0.7, 0.06), (0.0, 0.0, -0.93)), slab_tex),), RigidMotion("static")
@@ -231,7 +189,7 @@ def fallingball() -> SceneSpec:
     center = (-0.55, 0.0, 0.05)
     ball = Part(
         "ball",
-        (Piece(_place(g.sphere(0.2), _rot((1, 0, 0), 0.4), center), ball_tex),),
+        (Piece(place(g.sphere(0.2), rot((1, 0, 0), 0.4), center), ball_tex),),
         RigidMotion(
             "projectile",
             axis=(0.2, 1.0, 0.3),
@@ -248,7 +206,7 @@ def fallingball() -> SceneSpec:
 
 def slider() -> SceneSpec:
     """A carriage accelerating along a static rail while a wheel behind it turns."""
-    r = lambda k: _rng("slider", k)  # noqa: E731
+    r = lambda k: scene_rng("slider", k)  # noqa: E731
     rail_tex = tx.with_noise(tx.stripes(TEXTURE_SIZE, 12, (0.25, 0.25, 0.28), (0.65, 0.66, 0.70)), r(0), 0.3)
     rail = Part(
         "rail",
@@ -279,7 +237,7 @@ def slider() -> SceneSpec:
     wheel = Part(
         "wheel",
         # A disk in the xz plane behind the rail (its axis along y).
-        (Piece(_place(g.cylinder(0.3, 0.06), _rot((1, 0, 0), np.pi / 2), wheel_center), wheel_tex),),
+        (Piece(place(g.cylinder(0.3, 0.06), rot((1, 0, 0), np.pi / 2), wheel_center), wheel_tex),),
         RigidMotion(
             "rotation", axis=(0, 1, 0), pivot=wheel_center, angular_velocity=2.5, angular_acceleration=-0.6
         ),
@@ -295,6 +253,11 @@ SCENES: dict[str, Callable[[], SceneSpec]] = {
     "satellite": satellite,
     "fallingball": fallingball,
     "slider": slider,
+    "pendulum": pendulum,
+    "spring": spring,
+    "brake": brake,
+    "bounce": bounce,
+    "turntable": turntable,
 }
 """Scene name -> builder of its :class:`SceneSpec`."""
 

@@ -5,7 +5,7 @@ Output layout (all paths relative to ``out``)::
     transforms_{train,val,test}.json   cameras, times and image paths per split
     {train,val,test}/cXX_fYYY.png      RGBA, 8-bit sRGB, straight alpha, transparent background
     gt/masks/{split}/cXX_fYYY.png      uint8 part id per pixel (0 = background)
-    gt/motion.json                     closed-form motion parameters of every part
+    gt/motion.json                     closed-form motion parameters of every part (any motion type)
     gt/part_transforms.npz             times [F], transforms [F, P, 4, 4] (rest -> world)
     gt/points.npz                      points [M, 3] on the rest-pose surface, part_ids [M]
     gt/synth.json                      the settings the folder was made with
@@ -42,6 +42,7 @@ from .render import (
     to_srgb8,
 )
 from .scenes import SceneSpec, get_scene
+from .varying import FORMULAS
 
 EXTRAPOLATION_HORIZON = 1.5
 """Bounds and camera framing cover the object for all t in [0, EXTRAPOLATION_HORIZON]."""
@@ -275,17 +276,31 @@ def synthesize(
     return out
 
 
+def _formulas(records: list[dict]) -> dict:
+    """Closed form of each motion type of ``records`` (nested ones included) other than ``FORMULA``'s."""
+    found = {}
+    for record in records:
+        nested = [record.get(key) for key in ("parent", "child")]
+        found |= _formulas([r for r in nested if r is not None])
+        if record["type"] in FORMULAS:
+            found[record["type"]] = FORMULAS[record["type"]]
+    return found
+
+
 def _write_gt(gt: Path, spec: SceneSpec, times: np.ndarray, seed: int) -> None:
     motions = [p.motion for p in spec.parts]
+    parts = [motion_record(p.name, i + 1, p.motion) for i, p in enumerate(spec.parts)]
+    others = _formulas(parts)
     _write_json(
         gt / "motion.json",
         {
             "scene": spec.name,
             "description": spec.description,
             "formula": FORMULA,
+            **({"formulas": others} if others else {}),
             "time": "t_k = k / (frames - 1); fps = frames - 1 frames per unit of t",
             "units": "scene units and radians per unit of t; axis and pivot in world coordinates at t = 0",
-            "parts": [motion_record(p.name, i + 1, p.motion) for i, p in enumerate(spec.parts)],
+            "parts": parts,
         },
     )
     np.savez_compressed(
