@@ -161,7 +161,11 @@ def _calibrate(a: Calibrate) -> None:
 
     settings = {
         f"extrapolation.{k}": v
-        for k, v in (("handover_frames", a.handover_frames), ("free_bodies", a.free_bodies))
+        for k, v in (
+            ("handover_frames", a.handover_frames),
+            ("free_bodies", a.free_bodies),
+            ("joint_laws", a.joint_laws),
+        )
         if v is not None
     }
     for name, value in settings.items():

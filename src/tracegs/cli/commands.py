@@ -43,7 +43,8 @@ class Synth:
     out: Path
     """Output scene folder (Blender/D-NeRF format plus gt/)."""
     scene: str = "fan"
-    """fan, foldingchair, satellite, fallingball or slider."""
+    """fan, foldingchair, satellite, fallingball, slider (constant forces), or pendulum, spring, brake,
+    bounce, turntable (forces that are not constant; docs/SYNTH.md)."""
     resolution: int = 128
     views: int = 15
     frames: int = 60
@@ -82,6 +83,10 @@ class Calibrate:
     """New ``extrapolation.handover_frames`` (default: the run's)."""
     free_bodies: bool | None = None
     """New ``extrapolation.free_bodies`` (default: the run's)."""
+    joint_laws: bool | None = None
+    """New ``extrapolation.joint_laws`` (default: the run's): the rigid parts on a hinge or a rail
+    whose coordinate follows an identified force law (spring-damper, pendulum, friction stop) move by
+    it after the handover; what was tried and why each part kept the learned physics is printed."""
     data: Path | None = None
     """Scene folder (default: the one the run was trained on)."""
     json: Path | None = None

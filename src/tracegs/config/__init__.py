@@ -177,6 +177,29 @@ class ExtrapolationConfig:
     free_body_tolerance: float = 1.25
     """A free part's free body is kept while its backtest error (mean squared, on the training images)
     stays under this multiple of the learned physics'."""
+    joint_laws: bool = False
+    """Give each rigid part that turns on a hinge or slides on a rail (found as the free bodies' parts
+    are, among the moving Gaussians, and not a free body) a force law of its one joint coordinate,
+    ``q'' = f(q, q')`` (``physics/force_law.py``: constant, friction stop, spring-damper, pendulum),
+    identified on f_defo's path of the part up to the handover and integrated on from there
+    (``extrapolate/joints.py``). A law is adopted only where it is not ``constant`` and predicts the
+    held-out end of that path better than moving on at the last velocity and no worse than
+    ``joint_law_tolerance`` times the learned physics does; elsewhere the learned physics stays (the
+    paper's extrapolation) and the run summary says why. Off = the paper's extrapolation."""
+    joint_law_holdout: float = 0.25
+    """Fraction of the part's frames at the end of its path up to the handover (at least one) that the
+    laws are fitted without and scored on, to choose among them (``choose_law``) and to backtest the
+    chosen one against the learned physics; the chosen law is then fitted to every frame."""
+    joint_law_tolerance: float = 0.8
+    """A joint law is adopted only while its error on the held-out frames (RMS distance of the part's
+    Gaussians from f_defo's) stays under this multiple of the learned physics' started at the same
+    frame. Below 1: the learned physics is the paper's and holds a steady hinge by construction, so a
+    law must beat it clearly (on a steady `fan` a law within 0.96x of it cost 0.03 dB)."""
+    joint_fit_tolerance: float = 0.05
+    """A part is put on a joint only when the better of its hinge and its slider reproduces f_defo's
+    positions of the part over the frames within this fraction of the part's radius (RMS distance of
+    its Gaussians from their mean at the handover), RMS over its Gaussians and frames: what turns on
+    no fixed axis and slides along no fixed line keeps the learned physics."""
 
 
 @dataclass

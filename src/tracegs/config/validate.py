@@ -65,6 +65,9 @@ RULES: dict[str, tuple] = {
     "extrapolation.surface_still_fraction": (_unit, "in [0, 1]"),
     "extrapolation.surface_neighbours": (_positive_int, "a positive integer"),
     "extrapolation.free_body_refine_views": (_positive_int, "a positive integer"),
+    "extrapolation.joint_law_holdout": (lambda v: 0 < v < 1, "in (0, 1)"),
+    "extrapolation.joint_law_tolerance": (_positive, "a positive number"),
+    "extrapolation.joint_fit_tolerance": (_positive, "a positive number"),
 }
 """The settings with a range, by dotted name, with a predicate and the range in words; besides these,
 every number must be finite, and every count and learning rate non-negative (``validate``)."""

@@ -13,6 +13,8 @@ pseudo-extrapolation on the training data: start the physics ``horizon`` frames 
 training time, integrate to the last few training times, and score the training cameras there.
 
 ``choose_free_bodies`` (``free_bodies.py``): the rigid parts in flight that move as free bodies.
+``choose_joint_laws`` (``joints.py``): the rigid parts on a hinge or a rail whose coordinate follows a
+force law that the learned physics does not.
 """
 
 from __future__ import annotations
@@ -130,10 +132,12 @@ def has_policy(model) -> bool:
 
 def calibrate(model, t_max: float, extent: float | None = None) -> ExtrapolationState:
     """The extrapolation state of a trained ``model`` whose training span ends at ``t_max``: the
-    Gaussians no camera sees before the handover, the freeze threshold, then the free bodies, as the
-    config's ``extrapolation`` section asks (the training images are read from ``model.cfg.data``).
+    Gaussians no camera sees before the handover, the freeze threshold, the free bodies, then the
+    joint parts, as the config's ``extrapolation`` section asks (the training images are read from
+    ``model.cfg.data``).
     ``extent``: the scene extent of the training cameras, found from the scene when None."""
     from .free_bodies import choose_free_bodies
+    from .joints import choose_joint_laws
 
     cfg, settings = model.cfg, model.cfg.extrapolation
     state = ExtrapolationState(t_max=t_max)
@@ -141,7 +145,7 @@ def calibrate(model, t_max: float, extent: float | None = None) -> Extrapolation
         return state
     if settings.hold_unseen:
         state.unseen = unseen_gaussians(model, cfg.data, cfg.downscale, t_max)
-    if extent is None and (settings.freeze_static or settings.free_bodies):
+    if extent is None and (settings.freeze_static or settings.free_bodies or settings.joint_laws):
         dev = model.aabb.device
         centers = ViewDataset(cfg.data, "train", cfg.downscale, t_max=t_max, device=dev).camera_centers()
         extent = scene_extent_from_cameras(centers)
@@ -154,4 +158,6 @@ def calibrate(model, t_max: float, extent: float | None = None) -> Extrapolation
         state.free_bodies, state.report["free_bodies"] = choose_free_bodies(
             model, state, cfg.data, cfg.downscale, t_max, extent
         )
+    if settings.joint_laws:
+        state.joint_laws, state.report["joint_laws"] = choose_joint_laws(model, state, t_max, extent)
     return state

@@ -96,6 +96,19 @@ def window_means(model, t0: float, window: int) -> tuple[torch.Tensor, list[torc
     return times, [model.deform(float(t))["means"] for t in times]
 
 
+def moving_groups(model, t0: float, extent: float, window: int) -> tuple:
+    """``(path, moved, u, groups)``: f_defo's means over the ``window`` frames before ``t0``
+    (``window_means``), the [N] bool Gaussians it moves by more than 0.25% of the scene ``extent`` over
+    them, f_trd's particle velocities [N, 3] at ``t0``, and the [N] labels of the rigid groups of the
+    moved ones (``rigid_components``; 0: none). Free bodies and joint parts are found among them."""
+    path = window_means(model, t0, window)
+    x0, before = path[1][0], path[1][-1]
+    moved = (x0 - before).norm(dim=-1) > 0.0025 * extent
+    params = model.query_dynamics(x0, t0)
+    u = particle_velocity(x0, params.velocity, params.angular_velocity)
+    return path, moved, u, rigid_components(x0, moved, u, 0.0025 * extent).to(x0.device)
+
+
 def fit_free_body(
     model, rows: torch.Tensor, t0: float, path: tuple[torch.Tensor, list[torch.Tensor]]
 ) -> FreeBody:
@@ -190,12 +203,8 @@ def choose_free_bodies(
     t1 = t0 - dyn.free_body_backtest * model.dt_max
     if t1 - 2 * model.dt_max < -1e-9:  # too early in the span for a parabola before the backtest
         return none, []
-    path_t0 = window_means(model, t0, dyn.free_body_window)
-    x0, before = path_t0[1][0], path_t0[1][-1]
-    moved = (x0 - before).norm(dim=-1) > 0.0025 * extent
-    params = model.query_dynamics(x0, t0)
-    u = particle_velocity(x0, params.velocity, params.angular_velocity)
-    parts = rigid_components(x0, moved, u, 0.0025 * extent).to(dev)
+    path_t0, moved, u, parts = moving_groups(model, t0, extent, dyn.free_body_window)
+    x0 = path_t0[1][0]
     backtest = path_t1 = before_t1 = None
     chosen, report = [], []
 

@@ -3,7 +3,7 @@
 Up to the handover (``extrapolation.handover_frames`` before t_max) f_defo places the Gaussians, as in
 training; later the learned physics (f_trd, integrated from the handover) moves every Gaussian but
 those that hold still (``still.py``: one code per Gaussian says which and why) and those that move as
-free bodies (``free_bodies.py``). The methods without f_trd (DefGS, static 3DGS) render f_defo or the
+free bodies (``free_bodies.py``) or on joints with force laws (``joints.py``). The methods without f_trd (DefGS, static 3DGS) render f_defo or the
 canonical Gaussians at every time.
 N: Gaussians.
 """
@@ -30,8 +30,8 @@ def handover_time(model, t_max: float) -> float:
 @torch.no_grad()
 def gaussians_at(model, state: ExtrapolationState, t: float) -> dict[str, torch.Tensor]:
     """Geometry of the Gaussians at time ``t`` (``means`` [N, 3], ``quats`` [N, 4], log-``scales``
-    [N, 3]): f_defo up to the handover, then the learned physics, the still Gaussians and the free
-    bodies."""
+    [N, 3]): f_defo up to the handover, then the learned physics, the still Gaussians, the free
+    bodies and the joint parts."""
     g = model.gaussians
     if model.cfg.method == "static":
         return {"means": g["means"], "quats": g["quats"], "scales": g["scales"]}
@@ -42,7 +42,8 @@ def gaussians_at(model, state: ExtrapolationState, t: float) -> dict[str, torch.
     t0 = handover_time(model, state.t_max)
     if t <= t0:
         return model.deform(t)
-    return with_free_bodies(model, state, t0, t, physics_from(model, state, t0, t))
+    gaussians = with_free_bodies(model, state, t0, t, physics_from(model, state, t0, t))
+    return with_joint_laws(model, state, t0, t, gaussians)
 
 
 def with_free_bodies(
@@ -57,6 +58,21 @@ def with_free_bodies(
     if abs(bodies["t0"] - t0) > 1e-9 or labels.shape[0] != gaussians["means"].shape[0]:
         return gaussians  # chosen for another handover or another set of Gaussians
     return apply_free_bodies(gaussians, model.deform(t0), labels, bodies["bodies"], t - t0)
+
+
+def with_joint_laws(
+    model, state: ExtrapolationState, t0: float, t: float, gaussians: dict[str, torch.Tensor]
+) -> dict[str, torch.Tensor]:
+    """``gaussians`` with the joint parts' Gaussians moved by their force laws from f_defo's state at
+    ``t0`` (``joints.py``; ``extrapolation.joint_laws``)."""
+    joints = state.joint_laws
+    if not model.cfg.extrapolation.joint_laws or joints is None or not joints["parts"]:
+        return gaussians
+    if abs(joints["t0"] - t0) > 1e-9 or joints["labels"].shape[0] != gaussians["means"].shape[0]:
+        return gaussians  # chosen for another handover or another set of Gaussians
+    from .joints import apply_joint_laws  # joints.py builds on this module
+
+    return apply_joint_laws(gaussians, model.deform(t0), joints, t)
 
 
 def physics_from(

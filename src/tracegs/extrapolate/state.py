@@ -1,7 +1,7 @@
 """The post-training state of a run: everything the extrapolation policy chose on the training images
 when training ended, saved in the run folder (``extrapolation.pt``) and read back as it is.
 
-N: Gaussians, K: free bodies.
+N: Gaussians, K: free bodies, P: a force law's parameters.
 """
 
 from __future__ import annotations
@@ -12,9 +12,11 @@ import torch
 
 from ..physics.free_body import FREE_BODY_NUMBERS
 
-STATE_VERSION = 1
-"""Bumped when the saved layout changes; a run with another version is calibrated again
-(``tracegs calibrate --run RUN``)."""
+STATE_VERSION = 2
+"""Bumped when the saved layout changes; a run with a version not in ``READABLE_VERSIONS`` is
+calibrated again (``tracegs calibrate --run RUN``)."""
+READABLE_VERSIONS = (1, 2)
+"""The saved layouts read as they are: version 1 has no joint laws (none chosen)."""
 
 
 @dataclass
@@ -32,9 +34,16 @@ class ExtrapolationState:
     free_bodies: dict | None = None
     """``{"t0": handover, "labels": [N] long (0: the learned physics, k: body k - 1), "bodies": [K, 15]
     float64 (``FreeBody.as_tensor``)}``; None: not chosen."""
+    joint_laws: dict | None = None
+    """``{"t0": handover, "labels": [N] long (0: not a joint part, k: part k - 1), "parts": [one dict
+    per part: "joint" ("hinge" or "slider"), "axis" [3] (the hinge's axis or the rail's direction),
+    "pivot" [3] (zeros on a rail), "base_rotation" [3, 3], "base_translation" [3] (float64,
+    ``physics/joint.py``), "law" (a ``force_law.LAWS`` name), "params" [P] float64, "q0", "v0" (the
+    law's state at t0), "dt_max" (its integration step)]}`` (``extrapolate/joints.py``); None: none
+    adopted, or not looked for (``extrapolation.joint_laws``)."""
     report: dict = field(default_factory=dict)
     """What the choices were made from, for ``summary.json``: ``freeze_psnr`` {threshold: training-view
-    PSNR}, ``free_bodies`` [one entry per part backtested]."""
+    PSNR}, ``free_bodies`` [one entry per part backtested], ``joint_laws`` [one entry per part tried]."""
     cache: dict = field(default_factory=dict, repr=False, compare=False)
     """Derived data kept between renders (the surface painters of one handover state); never saved."""
 
@@ -46,13 +55,14 @@ class ExtrapolationState:
             "freeze_threshold": self.freeze_threshold,
             "unseen": self.unseen,
             "free_bodies": self.free_bodies,
+            "joint_laws": self.joint_laws,
             "report": self.report,
         }
 
     @classmethod
     def from_dict(cls, data: dict, device: torch.device | str = "cpu") -> ExtrapolationState:
         """The state saved by :meth:`to_dict`; ValueError when its version or layout is another."""
-        if data.get("version") != STATE_VERSION:
+        if data.get("version") not in READABLE_VERSIONS:
             raise ValueError(f"extrapolation state version {data.get('version')!r}, expected {STATE_VERSION}")
         bodies = data.get("free_bodies")
         if bodies is not None:
@@ -61,11 +71,14 @@ class ExtrapolationState:
                     f"free bodies of {bodies['bodies'].shape[-1]} numbers, expected {FREE_BODY_NUMBERS}"
                 )
             bodies = {**bodies, "labels": bodies["labels"].to(device)}
-        unseen = data.get("unseen")
+        unseen, joints = data.get("unseen"), data.get("joint_laws")
+        if joints is not None:
+            joints = {**joints, "labels": joints["labels"].to(device)}
         return cls(
             t_max=float(data["t_max"]),
             freeze_threshold=data.get("freeze_threshold"),
             unseen=None if unseen is None else unseen.to(device),
             free_bodies=bodies,
+            joint_laws=joints,
             report=data.get("report") or {},
         )

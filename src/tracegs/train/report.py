@@ -63,6 +63,7 @@ def summary(trainer) -> dict:
         "freeze_psnr": state.report.get("freeze_psnr", {}) if state else {},
         "static_fraction": trainer.static_fraction,
         "free_bodies": state.report.get("free_bodies", []) if state else [],
+        "joint_laws": state.report.get("joint_laws", []) if state else [],
         "nan_restorations": trainer.restorations,
         "ms_per_iteration": {k: round(1000 * v / steps, 2) for k, v in trainer.timings.items()},
         "device": str(trainer.device),

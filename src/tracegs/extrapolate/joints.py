@@ -1,0 +1,246 @@
+"""Joint parts with identified force laws (``extrapolation.joint_laws``): a rigid part that turns on a
+hinge or slides on a rail, whose one coordinate ``q`` follows a force law ``q'' = f(q, q')``
+(``physics/force_law.py``) that the learned physics, its accelerations held from the handover, cannot
+follow (a pendulum swinging back, a spring, a wheel braking to rest).
+
+For each rigid part of the moving Gaussians (``free_bodies.moving_groups``, split by ``split_rigid``;
+the free bodies' Gaussians left to them), f_defo's per-frame rigid transforms of the part from the
+handover t0 back to t = 0 give a hinge and a slider (``physics/joint.py``); the one that reproduces
+f_defo's positions better, within ``joint_fit_tolerance`` of the part's radius, gives ``q`` [T].
+``choose_law`` picks the law that best predicts the held-out end of ``q`` (``joint_law_holdout``). It is
+adopted when it is not ``constant``, is stable (no negative stiffness or damping: a passive joint),
+beats moving on at the last velocity there, and predicts the
+part's positions there no worse than ``joint_law_tolerance`` times the learned physics started at
+the same frame. Everything else keeps the learned physics, and the report says why. No images.
+
+N: Gaussians, M: a part's Gaussians, T: frames, P: a law's parameters.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from ..physics.force_law_fit import DEFAULT_LAWS, FittedLaw, choose_law, fit_law
+from ..physics.free_body import fit_rigid_transform, split_rigid
+from ..physics.joint import Hinge, Slider, fit_hinge, fit_slider, hinge_transforms, slider_transforms
+from ..physics.so3 import quat_multiply, quat_normalize, rotmat_to_quat
+from .free_bodies import moving_groups
+from .future import handover_time, physics_from
+from .state import ExtrapolationState
+
+MIN_FRAMES = 8
+"""Fewest frames of f_defo's path up to the handover that a joint law is identified from."""
+MIN_GAUSSIANS = 20
+"""Fewest Gaussians of a part (``rigid_components``' smallest group) put on a joint."""
+
+
+def part_transforms(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(R [T, 3, 3], T [T, 3])``: the rigid transforms that best carry a part's Gaussians from their
+    means ``x0`` [M, 3] at the handover to each of their means ``path`` [T] x [M, 3] (Kabsch)."""
+    fits = [fit_rigid_transform(x0, x) for x in path]
+    return torch.stack([r for r, _ in fits]), torch.stack([t for _, t in fits])
+
+
+def joint_transforms(joint: dict, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(R [T, 3, 3], T [T, 3])`` of the stored ``joint`` (``fit_joint``) at the coordinates ``q`` [T]."""
+    q = torch.as_tensor(q, dtype=torch.float64).reshape(-1)
+    if joint["joint"] == "hinge":
+        hinge = Hinge(joint["axis"], joint["pivot"], joint["base_rotation"], joint["base_translation"])
+        return hinge_transforms(hinge, q)
+    slider = Slider(joint["axis"], joint["base_rotation"], joint["base_translation"])
+    return slider_transforms(slider, q)
+
+
+def _positions(x0: torch.Tensor, rotation: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
+    """[T, M, 3] the points ``x0`` [M, 3] carried by each transform (``R`` [T, 3, 3], ``T`` [T, 3])."""
+    return x0.double().cpu() @ rotation.transpose(1, 2) + translation[:, None]
+
+
+def _rms(a: torch.Tensor, b: torch.Tensor) -> float:
+    return float((a - b).square().sum(-1).mean().sqrt())
+
+
+def fit_joint(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[dict | None, torch.Tensor | None, dict]:
+    """``(joint, q [T], residuals)`` of the part whose means are ``x0`` [M, 3] at the handover and
+    ``path`` [T] x [M, 3] at the frames: the hinge or the slider (``fit_hinge`` about the part's mean,
+    ``fit_slider``) whose transforms of ``q`` reproduce ``path`` with the smaller RMS residual. The
+    residuals are relative to the part's radius (RMS distance from its mean at the handover); the
+    joint is stored as plain tensors: ``{"joint": "hinge" | "slider", "axis"`` (the hinge's axis or
+    the rail's direction) ``, "pivot"`` (zeros on a rail) ``, "base_rotation", "base_translation"}``."""
+    x = x0.detach().double().cpu()
+    truth = torch.stack([p.detach().double().cpu() for p in path])
+    radius = max(float((x - x.mean(0)).square().sum(-1).mean().sqrt()), 1e-12)
+    rotation, translation = part_transforms(x, [p for p in truth])
+    hinge, q_hinge = fit_hinge(rotation, translation, centre=x.mean(0))
+    slider, q_slider = fit_slider(rotation, translation)
+    candidates = {
+        "hinge": (
+            {"joint": "hinge", "axis": hinge.axis, "pivot": hinge.pivot},
+            hinge,
+            q_hinge,
+        ),
+        "slider": (
+            {"joint": "slider", "axis": slider.direction, "pivot": torch.zeros(3, dtype=torch.float64)},
+            slider,
+            q_slider,
+        ),
+    }
+    residuals, best = {}, None
+    for name, (joint, fitted, q) in candidates.items():
+        joint = {**joint, "base_rotation": fitted.base_rotation, "base_translation": fitted.base_translation}
+        residual = _rms(_positions(x, *joint_transforms(joint, q)), truth) / radius
+        residuals[name] = residual if math.isfinite(residual) else math.inf
+        if math.isfinite(residual) and (best is None or residual < residuals[best[0]["joint"]]):
+            best = (joint, q)
+    residuals["radius"] = radius
+    return (None, None, residuals) if best is None else (*best, residuals)
+
+
+def _finite(value: float) -> float | None:
+    """A number as ``summary.json`` can hold it (JSON has no NaN or infinity: null)."""
+    return float(value) if math.isfinite(value) else None
+
+
+def _held_count(frames: int, holdout: float) -> int:
+    """Frames held out at the end of ``frames``, as ``choose_law`` holds them out (at least one)."""
+    return max(1, round(holdout * frames))
+
+
+class _LearnedBacktest:
+    """The learned physics started at f_defo's state at ``t1`` and run to the ``times`` after it (each
+    Gaussian's mean; computed once for every part held out from the same frame)."""
+
+    def __init__(self, model, state: ExtrapolationState):
+        self.model, self.state, self.runs = model, state, {}
+
+    def means(self, t1: float, times: list[float]) -> torch.Tensor:
+        """[T, N, 3] the learned physics' means at ``times`` from ``t1``."""
+        key = (t1, tuple(times))
+        if key not in self.runs:
+            runs = [physics_from(self.model, self.state, t1, t)["means"] for t in times]
+            self.runs[key] = torch.stack(runs).double().cpu()
+        return self.runs[key]
+
+
+def choose_part_law(
+    x0: torch.Tensor,
+    path: list[torch.Tensor],
+    times: list[float],
+    rows: torch.Tensor,
+    learned: _LearnedBacktest,
+    settings,
+) -> tuple[dict | None, dict]:
+    """``(stored part or None, report)`` of the part ``rows`` [N] bool, whose means are ``x0`` [M, 3]
+    at the handover ``times[-1]`` and ``path`` [T] x [M, 3] at the increasing ``times`` [T] (module
+    docstring). The stored part is its joint (``fit_joint``) with ``law``, ``params`` [P] and the law's
+    state ``q0``, ``v0`` at the handover."""
+    joint, q, residuals = fit_joint(x0, path)
+    entry: dict = {
+        "gaussians": int(rows.sum()),
+        "radius": residuals["radius"],
+        "residual": {k: _finite(residuals[k]) for k in ("hinge", "slider")},
+        "joint": None if joint is None else joint["joint"],
+        "adopted": False,
+    }
+    if joint is None or residuals[joint["joint"]] > settings.joint_fit_tolerance:
+        return None, {**entry, "why": "on no hinge or rail: the learned physics"}
+    t = np.asarray(times)
+    choice = choose_law(t, q, DEFAULT_LAWS, settings.joint_law_holdout)
+    fitted = choice.fitted
+    n = len(t) - _held_count(len(t), settings.joint_law_holdout)
+    # the part's positions on the held-out frames: the law fitted to the frames before them, against
+    # the learned physics started at the last of those frames
+    before = fit_law(t[:n], q[:n], fitted.name)
+    truth = torch.stack([p.detach().double().cpu() for p in path[n:]])
+    law_means = _positions(x0, *joint_transforms(joint, before.predict(t[n:])))
+    learned_means = learned.means(float(t[n - 1]), [float(s) for s in t[n:]])[:, rows.cpu()]
+    entry.update(
+        law=fitted.name,
+        constants={k: _finite(v) for k, v in fitted.constants.items()},
+        held_out={k: _finite(v) for k, v in choice.held_out.items()},
+        baseline=_finite(choice.backtest.baseline_rms),
+        held_out_frames=len(t) - n,
+        position_rms={"law": _rms(law_means, truth), "learned": _rms(learned_means, truth)},
+    )
+    if fitted.name == "constant":
+        why = "constant: the learned physics"
+    elif min(fitted.constants.get("k", 0.0), fitted.constants.get("c", 0.0)) < 0:
+        why = "unstable (a negative stiffness or damping grows without bound): the learned physics"
+    elif not choice.backtest.law_rms < choice.backtest.baseline_rms:
+        why = "no better than moving on at the last velocity: the learned physics"
+    elif not entry["position_rms"]["law"] < settings.joint_law_tolerance * entry["position_rms"]["learned"]:
+        why = "the learned physics predicts the held-out frames as well: the learned physics"
+    else:
+        q0, v0 = (float(x[0]) for x in fitted.state_at([t[-1]]))
+        part = {**joint, "law": fitted.name, "params": torch.tensor(fitted.params, dtype=torch.float64)}
+        part.update(q0=q0, v0=v0, dt_max=fitted.dt_max)
+        return part, {**entry, "adopted": True, "why": "adopted"}
+    return None, {**entry, "why": why}
+
+
+@torch.no_grad()
+def choose_joint_laws(
+    model, state: ExtrapolationState, t_max: float, extent: float
+) -> tuple[dict | None, list]:
+    """The joint parts of a trained model (``extrapolation.joint_laws``): ``({"t0", "labels", "parts"},
+    report)``, ``labels`` [N] long (0: not a joint part, k: ``parts[k - 1]``), ``parts`` one dict each
+    (``choose_part_law``); ``(None, report)`` where none is adopted. ``report``: one entry per part."""
+    settings = model.cfg.extrapolation
+    t0 = handover_time(model, t_max)
+    steps = int(math.floor(t0 / model.dt_max + 1e-6))  # the frames up to t0, t = 0 included
+    times = [max(0.0, t0 - k * model.dt_max) for k in range(steps, -1, -1)]
+    if len(times) < MIN_FRAMES:
+        return None, []
+    (_, window), moved, u, groups = moving_groups(model, t0, extent, settings.free_body_window)
+    x0 = window[0]
+    bodies = state.free_bodies
+    free = torch.zeros_like(moved)
+    if bodies is not None and bodies["labels"].shape[0] == moved.shape[0] and abs(bodies["t0"] - t0) < 1e-9:
+        free = bodies["labels"].to(moved.device) > 0
+    path = [model.deform(float(t))["means"] for t in times]
+    learned = _LearnedBacktest(model, state)
+    labels = torch.zeros(moved.shape[0], dtype=torch.long, device=moved.device)
+    parts, report = [], []
+    for label in range(1, int(groups.max()) + 1):
+        group = groups == label
+        split = split_rigid(x0[group], u[group], 0.0025 * extent).to(moved.device)
+        for k in range(1, int(split.max()) + 1):
+            rows = group.clone()
+            rows[group] = split == k
+            entry = {"group": label, "free_body": int((rows & free).sum())}
+            rows &= ~free  # a free body's Gaussians stay its own
+            if int(rows.sum()) < MIN_GAUSSIANS:
+                report.append({**entry, "gaussians": int(rows.sum()), "adopted": False, "why": "a free body"})
+                continue
+            part, result = choose_part_law(x0[rows], [p[rows] for p in path], times, rows, learned, settings)
+            report.append({**entry, **result})
+            if part is not None:
+                parts.append(part)
+                labels[rows] = len(parts)
+    return ({"t0": t0, "labels": labels, "parts": parts} if parts else None), report
+
+
+def apply_joint_laws(
+    gaussians: dict[str, torch.Tensor], start: dict[str, torch.Tensor], joints: dict, t: float
+) -> dict[str, torch.Tensor]:
+    """``gaussians`` with each joint part's Gaussians moved rigidly from their ``start`` (f_defo's state
+    at the handover ``joints["t0"]``) to ``t``: its law integrated from ``(q0, v0)`` to ``q(t)``, and
+    the joint's transform at ``q(t)`` relative to its transform at ``q0``."""
+    means, quats = gaussians["means"].clone(), quat_normalize(gaussians["quats"]).clone()
+    labels = joints["labels"].to(means.device)
+    for k, part in enumerate(joints["parts"]):
+        rows = labels == k + 1
+        params = tuple(float(p) for p in part["params"])
+        law = FittedLaw(part["law"], params, joints["t0"], part["q0"], part["v0"], 0.0, part["dt_max"])
+        q = law.integrate_from(part["q0"], part["v0"], joints["t0"], [t])[0]
+        rotation, translation = joint_transforms(part, torch.cat([q.new_tensor([part["q0"]]), q]))
+        turn = rotation[1] @ rotation[0].T
+        shift = translation[1] - turn @ translation[0]
+        x = start["means"][rows]
+        means[rows] = (x.double() @ turn.to(x.device).T + shift.to(x.device)).to(x.dtype)
+        q_turn = rotmat_to_quat(turn).to(dtype=quats.dtype, device=x.device)[None].expand(int(rows.sum()), 4)
+        quats[rows] = quat_multiply(q_turn, quat_normalize(start["quats"][rows]))
+    return {**gaussians, "means": means, "quats": quats}

@@ -1,0 +1,136 @@
+"""Joint parts with identified force laws: a part that f_defo swings as a damped pendulum about a
+hinge gets its hinge and a swinging law, and after the handover it swings on as the truth does; a
+part that turns steadily (a fan) keeps the learned physics; the state round-trips; off, nothing
+changes."""
+
+import io
+
+import numpy as np
+import pytest
+import torch
+from tests.conftest import randomised_model
+
+from tracegs.config import make_config
+from tracegs.extrapolate import ExtrapolationState, calibrate, gaussians_at, handover_time
+from tracegs.physics.force_law import LAWS, integrate
+from tracegs.physics.so3 import quat_multiply, rodrigues, rotmat_to_quat
+
+AXIS = torch.nn.functional.normalize(torch.tensor([0.2, 0.1, 1.0], dtype=torch.float64), dim=0)
+PIVOT = torch.tensor([0.0, 0.6, 0.0], dtype=torch.float64)
+T_MAX = 0.75
+
+
+def damped_pendulum(t: np.ndarray) -> np.ndarray:
+    """[T] the angle of ``q'' = -40 sin q - 0.8 q'`` released at rest from 0.7 rad at t = 0."""
+    p = np.array([[-40.0, 0.0, 0.8]])  # alpha = -k cos(q_rest), beta = k sin(q_rest), c
+    return integrate(LAWS["pendulum"], p, [0.7], [0.0], t, 1e-4)[0][0]
+
+
+def steady_turn(t: np.ndarray) -> np.ndarray:
+    return 2.0 * t
+
+
+def _model(angle, joint_laws: bool = True):
+    """A model whose f_defo turns its first 200 Gaussians (a blob 0.5 below the hinge) about the hinge
+    by ``angle(t)``, the other 200 (a blob far from it) held still; f_trd is zero (its physics holds
+    everything where the handover leaves it). Returns the model and the turning part's rows."""
+    cfg = make_config("tiny", device="cpu")
+    dyn = cfg.extrapolation
+    dyn.hold_unseen = dyn.freeze_static = dyn.free_bodies = False
+    dyn.joint_laws = joint_laws
+    model = randomised_model(cfg)
+    with torch.no_grad():
+        for p in model.dynamics.parameters():
+            p.zero_()
+    g = model.gaussians
+    n = g["means"].shape[0]
+    part = torch.arange(n) < n // 2
+    blob = 0.08 * torch.randn(n, 3, generator=torch.Generator().manual_seed(0))
+    centres = torch.where(part[:, None], torch.tensor([0.0, 0.1, 0.0]), torch.tensor([0.0, -0.8, 0.0]))
+    with torch.no_grad():
+        g["means"].copy_(blob + centres)
+
+    def deform(t: float) -> dict[str, torch.Tensor]:
+        turn = rodrigues(float(angle(np.array([t]))[0]) * AXIS)
+        means = g["means"].detach().double()
+        turned = (means - PIVOT) @ turn.T + PIVOT
+        q = rotmat_to_quat(turn).float()[None].expand(n, 4)
+        quats = torch.where(part[:, None], quat_multiply(q, g["quats"].detach()), g["quats"].detach())
+        return {
+            "means": torch.where(part[:, None], turned, means).float(),
+            "quats": quats,
+            "scales": g["scales"].detach(),
+        }
+
+    model.deform = deform  # f_defo, the truth: exact
+    return model, part
+
+
+def test_a_damped_pendulum_is_put_on_its_hinge_and_swings_on():
+    model, part = _model(damped_pendulum)
+    state = calibrate(model, T_MAX, extent=2.0)
+    (entry,) = state.report["joint_laws"]
+    assert entry["adopted"] and entry["joint"] == "hinge" and entry["gaussians"] == int(part.sum())
+    assert entry["law"] in ("spring_damper", "pendulum")
+    assert entry["residual"]["hinge"] < 1e-4 < entry["residual"]["slider"]
+    assert entry["position_rms"]["law"] < 0.1 * entry["position_rms"]["learned"]
+    assert torch.equal(state.joint_laws["labels"] > 0, part)
+    hinge = state.joint_laws["parts"][0]
+    assert abs(float(hinge["axis"] @ AXIS)) > 1 - 1e-8  # its sign: the last angle positive
+    offset = hinge["pivot"] - PIVOT
+    torch.testing.assert_close(
+        offset - (offset @ AXIS) * AXIS, torch.zeros(3, dtype=torch.float64), atol=1e-5, rtol=0
+    )
+
+    t0 = handover_time(model, T_MAX)
+    size = float(
+        (model.deform(t0)["means"][part] - model.deform(t0)["means"][part].mean(0)).norm(dim=1).max()
+    )
+    for t in (t0 + 0.01, T_MAX, 1.0, 1.25):  # after the handover: the truth's swing
+        got, want = gaussians_at(model, state, t), model.deform(t)
+        error = float((got["means"][part] - want["means"][part]).norm(dim=1).max())
+        assert error < 0.01 * size, (t, error, size)
+        torch.testing.assert_close(got["quats"][part], want["quats"][part], atol=2e-3, rtol=0)
+        torch.testing.assert_close(got["means"][~part], model.deform(t0)["means"][~part])  # still
+    # without the law, the learned physics (zero here) leaves the part where the handover put it
+    model.cfg.extrapolation.joint_laws = False
+    torch.testing.assert_close(gaussians_at(model, state, 1.0)["means"], model.deform(t0)["means"])
+
+
+def test_a_part_turning_steadily_keeps_the_learned_physics():
+    model, part = _model(steady_turn)
+    state = calibrate(model, T_MAX, extent=2.0)
+    (entry,) = state.report["joint_laws"]
+    assert entry["joint"] == "hinge" and entry["law"] == "constant" and not entry["adopted"]
+    assert "constant" in entry["why"]
+    assert state.joint_laws is None
+
+
+def test_the_joint_parts_round_trip_through_the_saved_state():
+    model, part = _model(damped_pendulum)
+    state = calibrate(model, T_MAX, extent=2.0)
+    buffer = io.BytesIO()
+    torch.save(state.to_dict(), buffer)
+    buffer.seek(0)
+    again = ExtrapolationState.from_dict(torch.load(buffer, weights_only=True))
+    assert again.joint_laws["parts"][0]["law"] == state.joint_laws["parts"][0]["law"]
+    for t in (T_MAX, 1.2):
+        assert torch.equal(gaussians_at(model, again, t)["means"], gaussians_at(model, state, t)["means"])
+    old = {k: v for k, v in state.to_dict().items() if k != "joint_laws"} | {"version": 1}
+    assert ExtrapolationState.from_dict(old).joint_laws is None  # written before joint laws: none
+    with pytest.raises(ValueError, match="version"):
+        ExtrapolationState.from_dict({**old, "version": 99})
+
+
+def test_off_nothing_changes():
+    """``joint_laws = False``: calibrate looks for none, and a state that holds some renders as the
+    same state without them, bit for bit."""
+    model, part = _model(damped_pendulum, joint_laws=False)
+    state = calibrate(model, T_MAX, extent=2.0)
+    assert state.joint_laws is None and "joint_laws" not in state.report
+    model.cfg.extrapolation.joint_laws = True
+    with_laws = calibrate(model, T_MAX, extent=2.0)
+    model.cfg.extrapolation.joint_laws = False
+    for t in (0.3, T_MAX, 1.2):
+        a, b = gaussians_at(model, with_laws, t), gaussians_at(model, state, t)
+        assert all(torch.equal(a[k], b[k]) for k in ("means", "quats", "scales"))
