@@ -198,8 +198,9 @@ class ExtrapolationConfig:
     joint_fit_tolerance: float = 0.05
     """A part is put on a joint only when the better of its hinge and its slider reproduces f_defo's
     positions of the part over the frames within this fraction of the part's radius (RMS distance of
-    its Gaussians from their mean at the handover), RMS over its Gaussians and frames: what turns on
-    no fixed axis and slides along no fixed line keeps the learned physics."""
+    its Gaussians from their mean at the handover) of what the part's best rigid motion per frame
+    reproduces (RMS over its Gaussians and frames; f_defo moves no part exactly rigidly): what turns
+    on no fixed axis and slides along no fixed line keeps the learned physics."""
 
 
 @dataclass

@@ -6,7 +6,8 @@ follow (a pendulum swinging back, a spring, a wheel braking to rest).
 For each rigid part of the moving Gaussians (``free_bodies.moving_groups``, split by ``split_rigid``;
 the free bodies' Gaussians left to them), f_defo's per-frame rigid transforms of the part from the
 handover t0 back to t = 0 give a hinge and a slider (``physics/joint.py``); the one that reproduces
-f_defo's positions better, within ``joint_fit_tolerance`` of the part's radius, gives ``q`` [T].
+f_defo's positions better, within ``joint_fit_tolerance`` of the part's radius of its best rigid
+motion per frame, gives ``q`` [T].
 ``choose_law`` picks the law that best predicts the held-out end of ``q`` (``joint_law_holdout``). It is
 adopted when it is not ``constant``, is stable (no negative stiffness or damping: a passive joint),
 beats moving on at the last velocity there, and predicts the
@@ -66,7 +67,8 @@ def _rms(a: torch.Tensor, b: torch.Tensor) -> float:
 def fit_joint(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[dict | None, torch.Tensor | None, dict]:
     """``(joint, q [T], residuals)`` of the part whose means are ``x0`` [M, 3] at the handover and
     ``path`` [T] x [M, 3] at the frames: the hinge or the slider (``fit_hinge`` about the part's mean,
-    ``fit_slider``) whose transforms of ``q`` reproduce ``path`` with the smaller RMS residual. The
+    ``fit_slider``) whose transforms of ``q`` reproduce ``path`` with the smaller RMS residual, and
+    ``residuals["rigid"]``, that of the best rigid transform of each frame. The
     residuals are relative to the part's radius (RMS distance from its mean at the handover); the
     joint is stored as plain tensors: ``{"joint": "hinge" | "slider", "axis"`` (the hinge's axis or
     the rail's direction) ``, "pivot"`` (zeros on a rail) ``, "base_rotation", "base_translation"}``."""
@@ -96,6 +98,7 @@ def fit_joint(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[dict | None, 
         if math.isfinite(residual) and (best is None or residual < residuals[best[0]["joint"]]):
             best = (joint, q)
     residuals["radius"] = radius
+    residuals["rigid"] = _rms(_positions(x, rotation, translation), truth) / radius
     return (None, None, residuals) if best is None else (*best, residuals)
 
 
@@ -141,11 +144,11 @@ def choose_part_law(
     entry: dict = {
         "gaussians": int(rows.sum()),
         "radius": residuals["radius"],
-        "residual": {k: _finite(residuals[k]) for k in ("hinge", "slider")},
+        "residual": {k: _finite(residuals[k]) for k in ("hinge", "slider", "rigid")},
         "joint": None if joint is None else joint["joint"],
         "adopted": False,
     }
-    if joint is None or residuals[joint["joint"]] > settings.joint_fit_tolerance:
+    if joint is None or residuals[joint["joint"]] > residuals["rigid"] + settings.joint_fit_tolerance:
         return None, {**entry, "why": "on no hinge or rail: the learned physics"}
     t = np.asarray(times)
     choice = choose_law(t, q, DEFAULT_LAWS, settings.joint_law_holdout)
