@@ -102,6 +102,17 @@ def fit_joint(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[dict | None, 
     return (None, None, residuals) if best is None else (*best, residuals)
 
 
+def _on_one_joint(x0: torch.Tensor, path: list[torch.Tensor], settings) -> bool:
+    """Whether the Gaussians ``x0`` [M, 3] (at the handover; ``path`` [T] x [M, 3]) turn on one hinge
+    or slide on one rail as well as they move rigidly (``joint_fit_tolerance``)."""
+    if x0.shape[0] < MIN_GAUSSIANS:
+        return False
+    joint, _, residuals = fit_joint(x0, path)
+    return (
+        joint is not None and residuals[joint["joint"]] <= residuals["rigid"] + settings.joint_fit_tolerance
+    )
+
+
 def _finite(value: float) -> float | None:
     """A number as ``summary.json`` can hold it (JSON has no NaN or infinity: null)."""
     return float(value) if math.isfinite(value) else None
@@ -209,12 +220,15 @@ def choose_joint_laws(
     parts, report = [], []
     for label in range(1, int(groups.max()) + 1):
         group = groups == label
-        split = split_rigid(x0[group], u[group], 0.0025 * extent).to(moved.device)
-        for k in range(1, int(split.max()) + 1):
-            rows = group.clone()
-            rows[group] = split == k
+        # a group on one joint is one part (its rigid split, from f_trd's velocities at the handover,
+        # can cut one body in pieces, each with a noisier coordinate); else each rigid part of it
+        pieces = [group]
+        if not _on_one_joint(x0[group & ~free], [p[group & ~free] for p in path], settings):
+            split = split_rigid(x0[group], u[group], 0.0025 * extent).to(moved.device)
+            pieces = [group.clone().index_put_((group,), split == k) for k in range(1, int(split.max()) + 1)]
+        for rows in pieces:
             entry = {"group": label, "free_body": int((rows & free).sum())}
-            rows &= ~free  # a free body's Gaussians stay its own
+            rows = rows & ~free  # a free body's Gaussians stay its own
             if int(rows.sum()) < MIN_GAUSSIANS:
                 report.append({**entry, "gaussians": int(rows.sum()), "adopted": False, "why": "a free body"})
                 continue
