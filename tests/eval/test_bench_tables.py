@@ -150,3 +150,16 @@ def test_cli_ablations_take_our_options_as_rows_on_request(tmp_path, capsys):
         main([*common, "--variants", "no such row"])
     assert exit_.value.code == 1
     assert "skip static" in capsys.readouterr().err  # the one-line error lists it among the choices
+
+
+def test_a_row_that_differs_after_training_reuses_the_trace_training(tmp_path):
+    out = tmp_path / "bench"
+    scenes = (str(write_tiny_scene(tmp_path / "scene", size=32)),)
+    variants = {k: METHODS[k] for k in ("TRACE", "TRACE joint laws")}
+    rows = run_variant_table("methods", variants, out, scenes, "tiny")
+    trace, joint = (out / "runs" / f"scene_{slug}_tiny" for slug in ("TRACE", "TRACE_joint_laws"))
+    assert [r["variant"] for r in rows] == ["TRACE", "TRACE joint laws"]
+    assert rows[0]["train_s"] == rows[1]["train_s"]  # the same training, not a second one
+    assert (trace / "log.jsonl").read_bytes() == (joint / "log.jsonl").read_bytes()
+    assert json.loads((joint / "config.json").read_text())["extrapolation"]["joint_laws"] is True
+    assert json.loads((trace / "config.json").read_text())["extrapolation"]["joint_laws"] is False

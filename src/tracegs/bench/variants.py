@@ -13,7 +13,7 @@ from pathlib import Path
 
 from ..config import make_config
 from ..results import make_record, write_record
-from ..run import changed_settings, training_changes
+from ..run import CHECKPOINT, CONFIG, LOG, SUMMARY, changed_settings, is_after_training, training_changes
 from ..utils import atomic_write_text
 
 # Paper numbers (extrapolation PSNR / SSIM / LPIPS) shown beside ours: Dynamic Multipart mean
@@ -36,6 +36,7 @@ METHODS = {
     "TRACE": {"method": "trace"},
     "TRACE_4dgs": {"method": "trace", "deformation.kind": "hexplane"},
     "DefGS": {"method": "defgs"},
+    "TRACE joint laws": {"method": "trace", "extrapolation.joint_laws": True},
 }
 
 ABLATIONS = {
@@ -191,6 +192,9 @@ def run_variant_table(
                 print(f"{run}: {why}; row skipped")
                 continue
             if not (done.is_file() and same):
+                trace_run = run.with_name(f"{Path(scene).name}_TRACE_{preset}{suffix}")
+                if not run.exists() and _after_training_only(variant):
+                    _copy_training(trace_run, run)  # calibrated and scored anew, not trained again
                 if run.exists() and (changed is None or training_changes(changed)):
                     _set_aside(run)  # trained with other settings: keep it aside, start afresh
                 # else resumed: after the last step only the calibration runs again (a render-time setting)
@@ -245,6 +249,23 @@ def run_variant_table(
             json_path, make_record(name, _flat(records), command, title=title, columns=_columns(records))
         )
     return records
+
+
+def _after_training_only(variant: dict) -> bool:
+    """Whether ``variant`` differs from TRACE only in settings read after the last step."""
+    extra = {k: v for k, v in variant.items() if METHODS["TRACE"].get(k) != v}
+    return bool(extra) and variant.get("method", "trace") == "trace" and all(map(is_after_training, extra))
+
+
+def _copy_training(trace_run: Path, run: Path) -> None:
+    """The training of the finished TRACE run ``trace_run`` copied into ``run`` (a row that differs
+    only after training then resumes it: its steps are done, so it is only calibrated and scored)."""
+    if not (trace_run / SUMMARY).is_file():
+        return
+    run.mkdir(parents=True)
+    for name in (CHECKPOINT, CONFIG, LOG):
+        shutil.copy2(trace_run / name, run / name)
+    print(f"{run}: the training of {trace_run}, calibrated and scored with its own settings")
 
 
 def _same_as_trace(variant: dict) -> bool:
