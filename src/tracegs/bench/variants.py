@@ -195,6 +195,7 @@ def run_variant_table(
                 trace_run = run.with_name(f"{Path(scene).name}_TRACE_{preset}{suffix}")
                 if not run.exists() and _after_training_only(variant):
                     _copy_training(trace_run, run)  # calibrated and scored anew, not trained again
+                    changed = _changed_settings(run, cfg)
                 if run.exists() and (changed is None or training_changes(changed)):
                     _set_aside(run)  # trained with other settings: keep it aside, start afresh
                 # else resumed: after the last step only the calibration runs again (a render-time setting)
