@@ -36,6 +36,11 @@ MIN_FRAMES = 8
 """Fewest frames of f_defo's path up to the handover that a joint law is identified from."""
 MIN_GAUSSIANS = 20
 """Fewest Gaussians of a part (``rigid_components``' smallest group) put on a joint."""
+RIGID_TOLERANCE = 0.2
+"""Largest RMS residual of a part's best rigid motion per frame, relative to its radius, for it to be
+put on a joint: a group whose pieces move apart (a box spinning on a turning table: 0.34) is cut into
+its rigid parts, and a part whose Gaussians slide over it (a symmetric wheel: 0.56) keeps the learned
+physics."""
 
 
 def part_transforms(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -103,14 +108,19 @@ def fit_joint(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[dict | None, 
 
 
 def _on_one_joint(x0: torch.Tensor, path: list[torch.Tensor], settings) -> bool:
-    """Whether the Gaussians ``x0`` [M, 3] (at the handover; ``path`` [T] x [M, 3]) turn on one hinge
-    or slide on one rail as well as they move rigidly (``joint_fit_tolerance``)."""
+    """Whether the Gaussians ``x0`` [M, 3] (at the handover; ``path`` [T] x [M, 3]) move rigidly and
+    turn on one hinge or slide on one rail about as well (``_fits``)."""
     if x0.shape[0] < MIN_GAUSSIANS:
         return False
     joint, _, residuals = fit_joint(x0, path)
-    return (
-        joint is not None and residuals[joint["joint"]] <= residuals["rigid"] + settings.joint_fit_tolerance
-    )
+    return joint is not None and _fits(joint, residuals, settings)
+
+
+def _fits(joint: dict, residuals: dict, settings) -> bool:
+    """Whether a part moves rigidly (``RIGID_TOLERANCE``) and its ``joint`` reproduces its motion about
+    as well as its best rigid motion per frame (``joint_fit_tolerance``)."""
+    rigid = residuals["rigid"]
+    return rigid <= RIGID_TOLERANCE and residuals[joint["joint"]] <= rigid + settings.joint_fit_tolerance
 
 
 def _finite(value: float) -> float | None:
@@ -159,8 +169,8 @@ def choose_part_law(
         "joint": None if joint is None else joint["joint"],
         "adopted": False,
     }
-    if joint is None or residuals[joint["joint"]] > residuals["rigid"] + settings.joint_fit_tolerance:
-        return None, {**entry, "why": "on no hinge or rail: the learned physics"}
+    if joint is None or not _fits(joint, residuals, settings):
+        return None, {**entry, "why": "not rigid, or on no hinge or rail: the learned physics"}
     t = np.asarray(times)
     choice = choose_law(t, q, DEFAULT_LAWS, settings.joint_law_holdout)
     fitted = choice.fitted
