@@ -34,6 +34,7 @@ ORDER = (
     "eval",
     "demo",
     "methods-validation",
+    "nonconstant-forces",
     "ablations",
     "dnerf",
     "dnerf-ablations",
