@@ -193,7 +193,7 @@ def _motions(data: Path) -> list[dict]:
 
 
 def _compare_omega(learned: np.ndarray, motion: dict, t: float) -> dict:
-    from ..data.synth.motion import motion_from_record
+    from ..data.synth.motion import motion_from_record  # (data.synth loads the renderer's modules)
 
     gt = np.asarray(motion_from_record(motion).angular_velocity_at(t), dtype=np.float64).reshape(3)
     gt_mag, mag = float(np.linalg.norm(gt)), float(np.linalg.norm(learned))

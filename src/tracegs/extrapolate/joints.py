@@ -107,15 +107,6 @@ def fit_joint(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[dict | None, 
     return (None, None, residuals) if best is None else (*best, residuals)
 
 
-def _on_one_joint(x0: torch.Tensor, path: list[torch.Tensor], settings) -> bool:
-    """Whether the Gaussians ``x0`` [M, 3] (at the handover; ``path`` [T] x [M, 3]) move rigidly and
-    turn on one hinge or slide on one rail about as well (``_fits``)."""
-    if x0.shape[0] < MIN_GAUSSIANS:
-        return False
-    joint, _, residuals = fit_joint(x0, path)
-    return joint is not None and _fits(joint, residuals, settings)
-
-
 def _fits(joint: dict, residuals: dict, settings) -> bool:
     """Whether a part moves rigidly (``RIGID_TOLERANCE``) and its ``joint`` reproduces its motion about
     as well as its best rigid motion per frame (``joint_fit_tolerance``)."""
@@ -156,12 +147,13 @@ def choose_part_law(
     rows: torch.Tensor,
     learned: _LearnedBacktest,
     settings,
+    fit: tuple | None = None,
 ) -> tuple[dict | None, dict]:
     """``(stored part or None, report)`` of the part ``rows`` [N] bool, whose means are ``x0`` [M, 3]
     at the handover ``times[-1]`` and ``path`` [T] x [M, 3] at the increasing ``times`` [T] (module
-    docstring). The stored part is its joint (``fit_joint``) with ``law``, ``params`` [P] and the law's
-    state ``q0``, ``v0`` at the handover."""
-    joint, q, residuals = fit_joint(x0, path)
+    docstring). The stored part is its joint (``fit_joint``, or ``fit`` when already made) with
+    ``law``, ``params`` [P] and the law's state ``q0``, ``v0`` at the handover."""
+    joint, q, residuals = fit if fit is not None else fit_joint(x0, path)
     entry: dict = {
         "gaussians": int(rows.sum()),
         "radius": residuals["radius"],
@@ -232,17 +224,22 @@ def choose_joint_laws(
         group = groups == label
         # a group on one joint is one part (its rigid split, from f_trd's velocities at the handover,
         # can cut one body in pieces, each with a noisier coordinate); else each rigid part of it
-        pieces = [group]
-        if not _on_one_joint(x0[group & ~free], [p[group & ~free] for p in path], settings):
+        whole = group & ~free
+        fit = fit_joint(x0[whole], [p[whole] for p in path]) if int(whole.sum()) >= MIN_GAUSSIANS else None
+        pieces = [(group, fit)]
+        if fit is None or fit[0] is None or not _fits(fit[0], fit[2], settings):
             split = split_rigid(x0[group], u[group], 0.0025 * extent).to(moved.device)
-            pieces = [group.clone().index_put_((group,), split == k) for k in range(1, int(split.max()) + 1)]
-        for rows in pieces:
+            pieces = [
+                (group.clone().index_put_((group,), split == k), None) for k in range(1, int(split.max()) + 1)
+            ]
+        for rows, fit in pieces:
             entry = {"group": label, "free_body": int((rows & free).sum())}
             rows = rows & ~free  # a free body's Gaussians stay its own
             if int(rows.sum()) < MIN_GAUSSIANS:
                 report.append({**entry, "gaussians": int(rows.sum()), "adopted": False, "why": "a free body"})
                 continue
-            part, result = choose_part_law(x0[rows], [p[rows] for p in path], times, rows, learned, settings)
+            x, part_path = x0[rows], [p[rows] for p in path]
+            part, result = choose_part_law(x, part_path, times, rows, learned, settings, fit)
             report.append({**entry, **result})
             if part is not None:
                 parts.append(part)
