@@ -7,14 +7,12 @@ for choosing settings); nothing is tuned or selected on the extrapolation split.
 
 from __future__ import annotations
 
-import json
-import shutil
 from pathlib import Path
 
 from ..config import make_config
 from ..results import make_record, write_record
-from ..run import CHECKPOINT, CONFIG, LOG, SUMMARY, changed_settings, is_after_training, training_changes
-from ..utils import atomic_write_text
+from ..run import is_after_training
+from .sweep import Cell, run_cells
 
 # Paper numbers (extrapolation PSNR / SSIM / LPIPS) shown beside ours: Dynamic Multipart mean
 # (Table 1 / appendix) for the methods, and Table 4 (Multipart) for the ablations.
@@ -100,25 +98,6 @@ def scene_folder(out: Path, scene: str, resolution: int, synthesize_missing: boo
     return data
 
 
-def _changed_settings(run: Path, cfg) -> list[str] | None:
-    """The settings in which ``run`` was made otherwise than ``cfg`` asks (``run.changed_settings``,
-    the question a resume asks; settings added since read as their defaults); None when its config is
-    missing or unreadable."""
-    try:
-        return changed_settings(json.loads((run / "config.json").read_text()), cfg)
-    except (FileNotFoundError, ValueError):
-        return None
-
-
-def _set_aside(run: Path) -> None:
-    """Rename a benchmark run folder made with other settings to ``RUN.previous`` (one kept)."""
-    previous = run.with_name(run.name + ".previous")
-    if previous.exists():
-        shutil.rmtree(previous)
-    run.rename(previous)
-    print(f"{run}: made with other settings; moved to {previous} and retraining")
-
-
 def validation_cut(data: Path, fraction: float, t_end: float | None = None) -> tuple[float, float]:
     """(t_cut, t_end) of a validation future: ``t_end`` is the training span's end (the scene's
     ``t_train_end``, else its last training time) and ``t_cut`` the last training time at or before
@@ -151,6 +130,8 @@ def run_variant_table(
     command: str | None = None,
     validation: float | None = None,
     json_path: str | Path | None = None,
+    cluster: str | None = None,
+    cpus_per_task: int = 1,
 ) -> list[dict]:
     """Train and evaluate every variant (config overrides) on every scene; one table row each.
 
@@ -161,12 +142,14 @@ def run_variant_table(
     frames (``validation_cut``): the table for choosing settings, which never sees the test splits.
     Rows with the same settings share one run folder (the ablation "dt=2" is the TRACE row). With
     ``json_path`` the rows are written there as a results record (``tracegs.results``).
+
+    The rows train one after the other in this process; with ``cluster`` (``"auto"``: a local Ray on
+    every CPU, else a Ray address) each row is a Ray task of ``cpus_per_task`` CPUs (``bench.sweep``),
+    with the same rows, run folders and record.
     """
     from ..config import apply_overrides
-    from ..eval.protocol import evaluate_run
-    from ..train.trainer import Trainer
 
-    records = []
+    cells = []
     for scene in scenes:
         data = scene_folder(out, scene, resolution, synthesize_missing=train)
         if data is None:
@@ -180,65 +163,21 @@ def run_variant_table(
             slug = "TRACE" if _same_as_trace(variant) else label.replace(" ", "_").replace("=", "")
             run = Path(out) / "runs" / f"{Path(scene).name}_{slug}_{preset}{suffix}"
             cfg = apply_overrides(make_config(preset, data=data, run=run), {**scene_overrides, **variant})
-            done, changed = run / "eval.json", _changed_settings(run, cfg)
-            same = changed == []
-            if not (done.is_file() and same) and not train:
-                why = "no finished run with these settings"
-                if done.is_file() and changed is not None and not training_changes(changed):
-                    why = (
-                        f"scored with other render-time settings ({', '.join(changed)}); "
-                        "run without --report-only to score it again"
-                    )
-                print(f"{run}: {why}; row skipped")
-                continue
-            if not (done.is_file() and same):
-                trace_run = run.with_name(f"{Path(scene).name}_TRACE_{preset}{suffix}")
-                if not run.exists() and _after_training_only(variant):
-                    _copy_training(trace_run, run)  # calibrated and scored anew, not trained again
-                    changed = _changed_settings(run, cfg)
-                if run.exists() and (changed is None or training_changes(changed)):
-                    _set_aside(run)  # trained with other settings: keep it aside, start afresh
-                # else resumed: after the last step only the calibration runs again (a render-time setting)
-                summary = Trainer(cfg, progress=False).train()
-                result = evaluate_run(run, future_end=future_end)
-                atomic_write_text(done, json.dumps(result, indent=2))
-            else:
-                summary = json.loads((run / "summary.json").read_text())
-            result = json.loads(done.read_text())
-            i, e = result["interpolation"], result["extrapolation"]
-            if validation is None:
-                scores = {
-                    "interp_psnr": i["mae_psnr"],
-                    "interp_ssim": i["ssim"],
-                    "interp_lpips": i.get("lpips_vgg", float("nan")),
-                    "extrap_psnr": e["mae_psnr"],
-                    "extrap_ssim": e["ssim"],
-                    "extrap_lpips": e.get("lpips_vgg", float("nan")),
-                    "extrap_psnr_new_cams": e.get("per_cameras", {})
-                    .get("new_cameras", {})
-                    .get("mae_psnr", "-"),
-                    "paper_extrap": PAPER.get(label, "-"),
-                }
-            else:
-                scores = {
-                    "t_cut": round(result["t_train_end"], 4),
-                    "t_end": round(result["future_end"], 4),
-                    "val_future_psnr": e["mae_psnr"],
-                    "val_future_ssim": e["ssim"],
-                    "val_future_lpips": e.get("lpips_vgg", float("nan")),
-                    "interp_psnr": i["mae_psnr"],
-                }
-            records.append(
-                {
-                    "scene": Path(scene).name,
-                    "variant": label,
-                    **scores,
-                    "train_s": summary["train_seconds"],
-                    "iterations": summary["iterations"],
-                    "gaussians": summary["gaussians"],
-                    "ms_per_it": summary["ms_per_iteration"],
-                }
+            cells.append(
+                Cell(
+                    Path(scene).name,
+                    label,
+                    run,
+                    cfg,
+                    trace_run=run.with_name(f"{Path(scene).name}_TRACE_{preset}{suffix}"),
+                    after_training_only=_after_training_only(variant),
+                    paper=PAPER.get(label, "-"),
+                    future_end=future_end,
+                    validation=validation is not None,
+                    train=train,
+                )
             )
+    records = run_cells(cells, cluster, cpus_per_task)
     if json_path is not None and records:
         cut = "" if validation is None else f" --validation {validation:g}"
         command = (
@@ -256,17 +195,6 @@ def _after_training_only(variant: dict) -> bool:
     """Whether ``variant`` differs from TRACE only in settings read after the last step."""
     extra = {k: v for k, v in variant.items() if METHODS["TRACE"].get(k) != v}
     return bool(extra) and variant.get("method", "trace") == "trace" and all(map(is_after_training, extra))
-
-
-def _copy_training(trace_run: Path, run: Path) -> None:
-    """The training of the finished TRACE run ``trace_run`` copied into ``run`` (a row that differs
-    only after training then resumes it: its steps are done, so it is only calibrated and scored)."""
-    if not (trace_run / SUMMARY).is_file():
-        return
-    run.mkdir(parents=True)
-    for name in (CHECKPOINT, CONFIG, LOG):
-        shutil.copy2(trace_run / name, run / name)
-    print(f"{run}: the training of {trace_run}, calibrated and scored with its own settings")
 
 
 def _same_as_trace(variant: dict) -> bool:

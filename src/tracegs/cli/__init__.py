@@ -264,6 +264,8 @@ def _bench(a: Bench) -> None:
             train=not a.report_only,
             validation=a.validation,
             json_path=a.json,
+            cluster=a.cluster,
+            cpus_per_task=a.cpus_per_task,
         )
     print(json.dumps(records, indent=2)[:4000])
 

@@ -239,7 +239,9 @@ class Metrics:
 class Bench:
     """Run a benchmark: `raster`, `fields`, `methods` (TRACE, TRACE_4dgs, DefGS) or `ablations` (Table 4).
 
-    `--json docs/results/NAME.json` keeps the record for docs/RESULTS.md (`tracegs results`)."""
+    `--json docs/results/NAME.json` keeps the record for docs/RESULTS.md (`tracegs results`). `methods`
+    and `ablations` train their rows one after the other; `--cluster auto` (or a Ray address) trains
+    them side by side as Ray tasks of `--cpus-per-task` CPUs each."""
 
     what: tyro.conf.Positional[Literal["raster", "fields", "methods", "ablations"]]
     json: Path | None = None
@@ -263,6 +265,12 @@ class Bench:
     validation: float | None = None
     """Choose settings without the test splits: train on this fraction of the training span (e.g. 0.8)
     and score the training cameras' later frames (methods and ablations)."""
+    cluster: str | None = None
+    """Train the rows as Ray tasks (methods and ablations): `auto` starts a local Ray on every CPU, any
+    other value is the address of a running Ray cluster (e.g. 10.0.0.5:6379); without it the rows train
+    one after the other in this process, as before. Needs `pip install -e ".[cluster]"`."""
+    cpus_per_task: int = 1
+    """With --cluster: the CPUs of each row's training (its torch and OpenMP threads)."""
 
 
 @dataclass
