@@ -4,11 +4,17 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
 import pytest
+import torch
+
+# Trainings in the tests keep torch's thread count (train/threads.py keeps a count set this way), so
+# that runs compared bit for bit never differ by what else the machine runs meanwhile.
+os.environ.setdefault("OMP_NUM_THREADS", str(torch.get_num_threads()))
 
 
 def write_tiny_scene(

@@ -262,7 +262,9 @@ def calibrate_run(
 
 
 # ----- whether a run folder was made with a config ------------------------------------------------
-RESUMABLE_CHANGES = frozenset({"run", "data", "device", "backend", "bf16", "checkpoint_every", "log_every"})
+RESUMABLE_CHANGES = frozenset(
+    {"run", "data", "device", "threads", "backend", "bf16", "checkpoint_every", "log_every"}
+)
 """Settings that may change when a killed run is resumed: where things are and the arithmetic of the
 machine (bf16 where the CPU has AMX), not what is trained."""
 

@@ -21,6 +21,7 @@ from typing import Literal
 
 from ..models.deformation import DeformationConfig
 from ..models.dynamics import DynamicsConfig
+from ..utils import cpu_has_amx_bf16  # noqa: F401  (part of the config API: cpu-fast reads it)
 from .validate import check_setting, flag_name, validate  # noqa: F401  (part of the config API)
 
 
@@ -123,6 +124,10 @@ class Stage2Config:
     static_displacement: float = 0.003
     """Largest f_defo displacement over the training span, as a fraction of the scene extent, of a
     Gaussian that ``skip_static`` marks static."""
+    views_per_step: int = 1
+    """Cameras rendered per step at the step's time (a batch of views; fewer where fewer saw it): the
+    fields are evaluated once for that time and the loss is the mean over the views, so their cost is
+    shared (a multi-view capture has many cameras per time). 1 = the paper's one-view step."""
 
 
 @dataclass
@@ -218,6 +223,9 @@ class TrainConfig:
     (``config.PRESETS``); recorded in the run folder."""
     device: str = "auto"
     """'auto' (CUDA if present, else CPU), 'cpu' or 'cuda[:i]'."""
+    threads: int = 0
+    """CPU threads of the training; 0: one per core that other processes leave free, counted at the
+    start and every 30 s (``train/threads.py``; ``OMP_NUM_THREADS``, when set, is kept)."""
     seed: int = 0
     """Random seed."""
     downscale: int = 1
@@ -276,15 +284,6 @@ class TrainConfig:
 def paper() -> TrainConfig:
     """The paper's sizes: 8 x 256 fields, 3k static + 37k dynamic iterations, SH degree 3."""
     return TrainConfig(preset="paper")
-
-
-def cpu_has_amx_bf16() -> bool:
-    """True on x86 CPUs with AMX-BF16 tiles (there bf16 autocast makes the field MLPs ~1.5-3x faster)."""
-    try:
-        with open("/proc/cpuinfo") as f:
-            return any("amx_bf16" in line for line in f if line.startswith("flags"))
-    except OSError:
-        return False
 
 
 def cpu_fast() -> TrainConfig:

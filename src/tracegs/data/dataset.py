@@ -73,6 +73,14 @@ class ViewDataset:
     def times(self) -> torch.Tensor:
         return torch.tensor([v.time for v in self.views])
 
+    def same_time(self, i: int) -> list[int]:
+        """The indices of the other views at view ``i``'s time (the other cameras of its frame)."""
+        if not hasattr(self, "_by_time"):
+            self._by_time: dict[float, list[int]] = {}
+            for k, v in enumerate(self.views):
+                self._by_time.setdefault(v.time, []).append(k)
+        return [k for k in self._by_time[self.views[i].time] if k != i]
+
     def camera_centers(self) -> torch.Tensor:
         return torch.stack([v.camera.center.cpu() for v in self.views])
 

@@ -16,10 +16,20 @@ from collections import defaultdict
 from pathlib import Path
 
 import torch
+from tqdm import tqdm
 
 from ..config import TrainConfig, config_to_dict
 from ..data.dataset import ViewDataset
-from ..run import RunError, changed_settings, gaussians_of, training_changes
+from ..run import (
+    CHECKPOINT,
+    LOG,
+    RunError,
+    TrainingDiverged,
+    changed_settings,
+    gaussians_of,
+    training_changes,
+    truncate_log,
+)
 from ..utils import atomic_write_bytes, random_states, set_random_states
 from .optim import gaussian_optimizers
 
@@ -132,3 +142,26 @@ class Checkpoints:
 
     def last_good(self, device: torch.device) -> dict:
         return torch.load(io.BytesIO(self.good), map_location=device, weights_only=True)
+
+
+def restore_after(trainer, err) -> None:
+    """The NaN guard after ``err`` (``guard.NonFinite``): back to the last good state with the learning
+    rates times ``optim.nan_lr_factor``; the second time, that state is saved and ``TrainingDiverged``
+    raised."""
+    factor = trainer.cfg.optim.nan_lr_factor
+    lr_scale, restorations, seconds = trainer.lr_scale, trainer.restorations, trainer.train_seconds
+    restore_trainer_state(trainer, trainer.checkpoints.last_good(trainer.device))
+    trainer.train_seconds = seconds  # the time spent is spent
+    truncate_log(trainer.run / LOG, trainer.step)
+    if restorations:
+        trainer.save()
+        first = restorations[0]
+        raise TrainingDiverged(
+            f"{trainer.run}: training diverged: {err} after the {first['what']} at step {first['step']} "
+            f"had restored step {first['to_step']} with the learning rates x{factor}; "
+            f"{trainer.run / CHECKPOINT} keeps step {trainer.step}, the last good state"
+        )
+    trainer.lr_scale = lr_scale * factor
+    trainer.restorations = [*restorations, {"step": err.step, "to_step": trainer.step, "what": err.what}]
+    if trainer.progress:
+        tqdm.write(f"{err}: restored step {trainer.step}, learning rates x{factor}")

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import torch
 
-from ..image_metrics import ssim
+from ..render.ssim import training_ssim
 
 
 def photometric_loss(
     image: torch.Tensor, target: torch.Tensor, ssim_weight: float = 0.2
 ) -> dict[str, torch.Tensor]:
-    """Named loss terms for a rendered ``image`` [H, W, 3] against ``target`` [H, W, 3]; "loss" is the sum."""
+    """Named loss terms for a rendered ``image`` [H, W, 3] against ``target`` [H, W, 3]; "loss" is the sum.
+    SSIM is ``image_metrics.ssim``'s, by the native kernel on the CPU (``render/ssim.py``)."""
     l1 = (image - target).abs().mean()
-    s = ssim(image, target)
+    s = training_ssim(image, target)
     return {"l1": l1, "ssim": s.detach(), "loss": (1 - ssim_weight) * l1 + ssim_weight * (1 - s)}

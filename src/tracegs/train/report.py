@@ -67,5 +67,6 @@ def summary(trainer) -> dict:
         "nan_restorations": trainer.restorations,
         "ms_per_iteration": {k: round(1000 * v / steps, 2) for k, v in trainer.timings.items()},
         "device": str(trainer.device),
+        "threads": trainer.threads.changes if trainer.threads else [],
         "rasteriser": resolve_backend(trainer.cfg.backend, trainer.device),
     }

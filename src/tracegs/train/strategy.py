@@ -60,13 +60,15 @@ class DefaultStrategy:
         optimizers: dict[str, torch.optim.Optimizer],
         state: dict[str, Any],
         step: int,
-        render_info: dict,
+        render_info: dict | list[dict],
     ) -> dict[str, int]:
-        """Accumulate gradients of this step; refine on schedule. Returns counts of what changed."""
+        """Accumulate gradients of this step (of each view it rendered, ``render_info`` a list);
+        refine on schedule. Returns counts of what changed."""
         cfg = self.cfg
         if step >= self.refine_stop:
             return {}
-        self._accumulate(params, state, render_info)
+        for info in [render_info] if isinstance(render_info, dict) else render_info:
+            self._accumulate(params, state, info)
         report: dict[str, int] = {}
         if step > cfg.refine_start and step % cfg.refine_every == 0:
             report = self._refine(params, optimizers, state, step)

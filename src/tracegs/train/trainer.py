@@ -37,7 +37,6 @@ from ..run import (
     LOG,
     SUMMARY,
     RunError,
-    TrainingDiverged,
     load_extrapolation,
     load_tensors,
     lock_run,
@@ -49,6 +48,7 @@ from ..utils import atomic_write_text, remove_temporaries, resolve_device, seed_
 from .checkpoint import (
     Checkpoints,
     check_resumable,
+    restore_after,
     restore_trainer_state,
     trainer_state,
     training_fingerprint,
@@ -67,6 +67,7 @@ from .optim import (
 from .report import describe, report_step, stage, summary
 from .scene_frame import default_aabb, field_frame
 from .strategy import DefaultStrategy
+from .threads import ThreadPolicy
 
 
 def initial_gaussians(cfg: TrainConfig, aabb: torch.Tensor, device) -> torch.nn.ParameterDict:
@@ -123,6 +124,7 @@ class Trainer:
         self.timings: dict[str, float] = defaultdict(float)
         self.checkpoints = Checkpoints(self.run / CHECKPOINT)
         self._in_step = False  # while a step runs: an interrupt then leaves half a step
+        self.threads: ThreadPolicy | None = None  # the thread counts of the steps this call trains
         if (self.run / CHECKPOINT).is_file():
             self._resume(self.run / CHECKPOINT)
 
@@ -147,6 +149,12 @@ class Trainer:
         limit = self.time_limit(dyn_step) + 1e-9
         allowed = [i for i, v in enumerate(self.data.views) if v.time <= limit]
         return random.choice(allowed)
+
+    def _views_at_time(self, index: int) -> list:
+        """View ``index`` and up to ``stage2.views_per_step`` - 1 other cameras' views at its time, at random."""
+        others, extra = self.data.same_time(index), self.cfg.stage2.views_per_step - 1
+        chosen = random.sample(others, min(extra, len(others))) if extra > 0 else []
+        return [self.data[i] for i in [index, *chosen]]
 
     def _t_prime(self, t: float) -> float:
         """t' = t -/+ dt with a random sign, kept inside [0, t_max]."""
@@ -197,8 +205,7 @@ class Trainer:
         return min(self.cfg.sh_degree, self.step // max(self.cfg.sh_degree_interval, 1))
 
     def _clock(self) -> float:
-        """Wall time for the per-part timings; on CUDA after the queued kernels finish, so that each
-        part is charged its own GPU time rather than the time to queue it."""
+        """Wall time for the per-part timings; on CUDA after the queued kernels finish (their own time)."""
         synchronize(self.device)
         return time.perf_counter()
 
@@ -213,6 +220,21 @@ class Trainer:
         self._in_step = False
         return stats
 
+    def views_loss(self, state: dict, views: list, background: torch.Tensor) -> tuple[dict, list[dict]]:
+        """The photometric loss terms of Gaussians ``state`` rendered from ``views`` (the mean over
+        them; the fields' state is shared), and each view's render info for the densification."""
+        infos, losses = [], {}
+        for view in views:
+            target = self.data.target(view, background) if self.cfg.random_background else view.image
+            out = self.model.render(state, view.camera, self.sh_degree(), background)
+            size = {"width": view.camera.width, "height": view.camera.height}
+            infos.append({"means2d": out.means2d, "radii": out.radii, **size})
+            self.strategy.step_pre_backward(infos[-1])
+            for name, value in photometric_loss(out.image, target, self.cfg.optim.ssim_weight).items():
+                value = value / len(views) if len(views) > 1 else value
+                losses[name] = losses[name] + value if name in losses else value
+        return losses, infos
+
     def _step(self) -> dict[str, float]:
         cfg, step = self.cfg, self.step
         static = step < cfg.static_iterations or cfg.method == "static"
@@ -221,7 +243,7 @@ class Trainer:
 
         t_start = self._clock()
         if static:
-            view = self.data[random.choice(self.static_views)]
+            views = [self.data[random.choice(self.static_views)]]
             g = self.model.gaussians
             state = {"means": g["means"], "quats": g["quats"], "scales": g["scales"]}
         else:
@@ -231,25 +253,14 @@ class Trainer:
             if skip and self.model.static_mask is None and step == self._static_marking_step():
                 threshold = cfg.stage2.static_displacement * self.extent
                 self.static_fraction = self.model.mark_static(threshold, self.t_max)
-            view = self.data[self._dynamic_view(dyn_step)]
+            views = self._views_at_time(self._dynamic_view(dyn_step))
+            view = views[0]
             t_prime = self._t_prime(view.time)
             t_check = self._consistency_time(t_prime, view.time, self.time_limit(dyn_step))
             state, extra_losses = self.model.training_state(t_prime, view.time, t_check=t_check)
         t_fields = self._clock()
-        if cfg.random_background:
-            background = torch.rand(3, device=self.device)
-            target = self.data.target(view, background)
-        else:
-            background, target = self.data.background, view.image
-        out = self.model.render(state, view.camera, self.sh_degree(), background)
-        info = {
-            "means2d": out.means2d,
-            "radii": out.radii,
-            "width": view.camera.width,
-            "height": view.camera.height,
-        }
-        self.strategy.step_pre_backward(info)
-        losses = photometric_loss(out.image, target, cfg.optim.ssim_weight)
+        background = torch.rand(3, device=self.device) if cfg.random_background else self.data.background
+        losses, infos = self.views_loss(state, views, background)
         if not static:  # the model's named auxiliary losses join the loss, each logged by name
             for name, value in (extra_losses | self.model.regularization_losses()).items():
                 losses[name] = value
@@ -270,7 +281,7 @@ class Trainer:
         if self.field_opt is not None:
             self.field_opt.zero_grad(set_to_none=True)
         report = self.strategy.step_post_backward(
-            self.model.gaussians, self.optimizers, self.strategy_state, step, info
+            self.model.gaussians, self.optimizers, self.strategy_state, step, infos
         )
         t_end = self._clock()
         for key, dt in (
@@ -314,9 +325,11 @@ class Trainer:
         bar = tqdm(total=total, initial=self.step, disable=not self.progress, desc=f"train {stage(self)}")
         log = (self.run / LOG).open("a")
         try:
-            with interrupt_at_step_end() as interrupt:
+            with interrupt_at_step_end() as interrupt, ThreadPolicy(cfg.threads) as threads:
+                self.threads = threads
                 while self.step < total:
                     try:
+                        threads.check()
                         stats = self.train_step()
                         report_step(self, stats, bar, log)
                         if self.step % cfg.checkpoint_every == 0 or self.step == total:
@@ -324,7 +337,7 @@ class Trainer:
                             self.save()
                     except NonFinite as err:
                         log.close()
-                        self._restore_after(err)
+                        restore_after(self, err)
                         log = (self.run / LOG).open("a")
                         bar.reset(total)
                         bar.update(self.step)
@@ -337,27 +350,6 @@ class Trainer:
             bar.close()
             log.close()
         return self.step > start
-
-    def _restore_after(self, err: NonFinite) -> None:
-        """The NaN guard: back to the last good state with the learning rates times ``optim.nan_lr_factor``;
-        the second time, that state is saved and ``TrainingDiverged`` raised."""
-        factor = self.cfg.optim.nan_lr_factor
-        lr_scale, restorations, seconds = self.lr_scale, self.restorations, self.train_seconds
-        restore_trainer_state(self, self.checkpoints.last_good(self.device))
-        self.train_seconds = seconds  # the time spent is spent
-        truncate_log(self.run / LOG, self.step)
-        if restorations:
-            self.save()
-            first = restorations[0]
-            raise TrainingDiverged(
-                f"{self.run}: training diverged: {err} after the {first['what']} at step {first['step']} "
-                f"had restored step {first['to_step']} with the learning rates x{factor}; "
-                f"{self.run / CHECKPOINT} keeps step {self.step}, the last good state"
-            )
-        self.lr_scale = lr_scale * factor
-        self.restorations = [*restorations, {"step": err.step, "to_step": self.step, "what": err.what}]
-        if self.progress:
-            tqdm.write(f"{err}: restored step {self.step}, learning rates x{factor}")
 
     def _save_interrupted(self) -> None:
         """The checkpoint of an interrupted run: the current step's, or the last good state where the

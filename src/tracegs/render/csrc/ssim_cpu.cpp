@@ -1,0 +1,163 @@
+// SSIM of the training loss with its explicit backward, on the CPU: 11-tap Gaussian window (sigma
+// 1.5) applied separably with "valid" filtering, K1 = 0.01, K2 = 0.03, data range 1; the SSIM map
+// averaged over pixels and channels (pytorch-msssim's ssim(size_average=True), which
+// tracegs.image_metrics.ssim calls). The gradient is taken with respect to the rendered image only.
+//
+// H x W: image, C = 3 channels, K = 11 taps, Ho x Wo = (H - K + 1) x (W - K + 1).
+// With the moments m1 = g * x, m2 = g * x^2, m12 = g * (x y) (my, myy the target's), the SSIM map is
+// S = A1 A2 / (B1 B2), A1 = 2 m1 my + C1, A2 = 2 (m12 - m1 my) + C2, B1 = m1^2 + my^2 + C1,
+// B2 = m2 - m1^2 + myy - my^2 + C2; dS/dx(q) = sum_p g(p - q) [dS/dm1 + 2 x(q) dS/dm2 + y(q) dS/dm12](p),
+// i.e. the three partial maps filtered by the transposed ("full") window. The forward keeps them.
+
+#include <torch/extension.h>
+
+#include <cmath>
+#include <vector>
+
+namespace {
+
+constexpr int kTaps = 11;
+constexpr float kSigma = 1.5f;
+constexpr float kC1 = 0.01f * 0.01f;
+constexpr float kC2 = 0.03f * 0.03f;
+
+std::vector<float> window() {
+    std::vector<float> g(kTaps);
+    float sum = 0.0f;
+    for (int k = 0; k < kTaps; ++k) {
+        const float c = static_cast<float>(k - kTaps / 2);
+        g[k] = std::exp(-(c * c) / (2.0f * kSigma * kSigma));
+        sum += g[k];
+    }
+    for (float& v : g) v /= sum;
+    return g;
+}
+
+// [h, w] -> [h - K + 1, w - K + 1]: the window along rows, then along columns ("valid").
+void filter_valid(const float* in, float* tmp, float* out, int h, int w, const float* g) {
+    const int wo = w - kTaps + 1, ho = h - kTaps + 1;
+    for (int i = 0; i < h; ++i) {
+        float* t = tmp + i * wo;
+        const float* r = in + i * w;
+        for (int j = 0; j < wo; ++j) t[j] = 0.0f;
+        for (int k = 0; k < kTaps; ++k)
+            for (int j = 0; j < wo; ++j) t[j] += g[k] * r[j + k];
+    }
+    for (int i = 0; i < ho; ++i) {
+        float* o = out + i * wo;
+        for (int j = 0; j < wo; ++j) o[j] = 0.0f;
+        for (int k = 0; k < kTaps; ++k) {
+            const float* t = tmp + (i + k) * wo;
+            for (int j = 0; j < wo; ++j) o[j] += g[k] * t[j];
+        }
+    }
+}
+
+// The transpose of filter_valid: [h - K + 1, w - K + 1] -> [h, w] ("full").
+void filter_full(const float* in, float* tmp, float* out, int h, int w, const float* g) {
+    const int wo = w - kTaps + 1, ho = h - kTaps + 1;
+    for (int i = 0; i < h * wo; ++i) tmp[i] = 0.0f;
+    for (int i = 0; i < ho; ++i)
+        for (int k = 0; k < kTaps; ++k) {
+            float* t = tmp + (i + k) * wo;
+            const float* r = in + i * wo;
+            for (int j = 0; j < wo; ++j) t[j] += g[k] * r[j];
+        }
+    for (int i = 0; i < h; ++i) {
+        float* o = out + i * w;
+        const float* t = tmp + i * wo;
+        for (int j = 0; j < w; ++j) o[j] = 0.0f;
+        for (int k = 0; k < kTaps; ++k)
+            for (int j = 0; j < wo; ++j) o[j + k] += g[k] * t[j];
+    }
+}
+
+void check_images(const torch::Tensor& img, const torch::Tensor& ref) {
+    TORCH_CHECK(img.dim() == 3 && img.size(2) == 3, "ssim: images must be [H, W, 3]");
+    TORCH_CHECK(img.sizes() == ref.sizes(), "ssim: the two images differ in size");
+    TORCH_CHECK(img.scalar_type() == torch::kFloat32 && ref.scalar_type() == torch::kFloat32,
+                "ssim: float32 images expected");
+    TORCH_CHECK(img.size(0) >= kTaps && img.size(1) >= kTaps, "ssim: images smaller than the window");
+}
+
+// Channel c of a contiguous [H, W, 3] image as a plane [H, W].
+void plane(const float* hwc, int c, int n, float* out) {
+    for (int i = 0; i < n; ++i) out[i] = hwc[3 * i + c];
+}
+
+}  // namespace
+
+// (mean SSIM [], partial maps [3 channels, 3 maps, Ho, Wo]) of img against ref, both [H, W, 3].
+std::vector<torch::Tensor> ssim_forward(torch::Tensor img, torch::Tensor ref) {
+    check_images(img, ref);
+    img = img.contiguous();
+    ref = ref.contiguous();
+    const int h = img.size(0), w = img.size(1), ho = h - kTaps + 1, wo = w - kTaps + 1, n = h * w, m = ho * wo;
+    const std::vector<float> g = window();
+    auto partials = torch::empty({3, 3, ho, wo}, img.options());
+    const float* x_hwc = img.data_ptr<float>();
+    const float* y_hwc = ref.data_ptr<float>();
+    float* p = partials.data_ptr<float>();
+    double total = 0.0;
+    std::vector<float> x(n), y(n), prod(n), tmp(h * wo);
+    std::vector<float> m1(m), my(m), m2(m), myy(m), m12(m);
+    for (int c = 0; c < 3; ++c) {
+        plane(x_hwc, c, n, x.data());
+        plane(y_hwc, c, n, y.data());
+        filter_valid(x.data(), tmp.data(), m1.data(), h, w, g.data());
+        filter_valid(y.data(), tmp.data(), my.data(), h, w, g.data());
+        for (int i = 0; i < n; ++i) prod[i] = x[i] * x[i];
+        filter_valid(prod.data(), tmp.data(), m2.data(), h, w, g.data());
+        for (int i = 0; i < n; ++i) prod[i] = y[i] * y[i];
+        filter_valid(prod.data(), tmp.data(), myy.data(), h, w, g.data());
+        for (int i = 0; i < n; ++i) prod[i] = x[i] * y[i];
+        filter_valid(prod.data(), tmp.data(), m12.data(), h, w, g.data());
+        float* d1 = p + (3 * c + 0) * m;
+        float* d2 = p + (3 * c + 1) * m;
+        float* d12 = p + (3 * c + 2) * m;
+        double sum = 0.0;
+        for (int i = 0; i < m; ++i) {
+            const float mx = m1[i], mu = my[i];
+            const float a1 = 2.0f * mx * mu + kC1, a2 = 2.0f * (m12[i] - mx * mu) + kC2;
+            const float b1 = mx * mx + mu * mu + kC1, b2 = (m2[i] - mx * mx) + (myy[i] - mu * mu) + kC2;
+            const float s = (a1 * a2) / (b1 * b2);
+            sum += s;
+            d1[i] = s * (2.0f * mu / a1 - 2.0f * mu / a2 - 2.0f * mx / b1 + 2.0f * mx / b2);
+            d2[i] = -s / b2;
+            d12[i] = s * 2.0f / a2;
+        }
+        total += sum / m;
+    }
+    return {torch::full({}, static_cast<float>(total / 3.0), img.options()), partials};
+}
+
+// d(mean SSIM)/d(img) [H, W, 3] times grad (a number), from ssim_forward's partial maps.
+torch::Tensor ssim_backward(torch::Tensor img, torch::Tensor ref, torch::Tensor partials, double grad) {
+    check_images(img, ref);
+    img = img.contiguous();
+    ref = ref.contiguous();
+    const int h = img.size(0), w = img.size(1), ho = h - kTaps + 1, wo = w - kTaps + 1, n = h * w, m = ho * wo;
+    TORCH_CHECK(partials.sizes() == torch::IntArrayRef({3, 3, ho, wo}), "ssim: partial maps of another size");
+    const std::vector<float> g = window();
+    auto out = torch::empty_like(img);
+    const float* x_hwc = img.data_ptr<float>();
+    const float* y_hwc = ref.data_ptr<float>();
+    const float* p = partials.contiguous().data_ptr<float>();
+    float* o = out.data_ptr<float>();
+    const float scale = static_cast<float>(grad / (3.0 * m));  // the mean over channels and pixels
+    std::vector<float> tmp(h * wo), f1(n), f2(n), f12(n);
+    for (int c = 0; c < 3; ++c) {
+        filter_full(p + (3 * c + 0) * m, tmp.data(), f1.data(), h, w, g.data());
+        filter_full(p + (3 * c + 1) * m, tmp.data(), f2.data(), h, w, g.data());
+        filter_full(p + (3 * c + 2) * m, tmp.data(), f12.data(), h, w, g.data());
+        for (int i = 0; i < n; ++i)
+            o[3 * i + c] = scale * (f1[i] + 2.0f * x_hwc[3 * i + c] * f2[i] + y_hwc[3 * i + c] * f12[i]);
+    }
+    return out;
+}
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+    using release = py::call_guard<py::gil_scoped_release>;
+    m.def("ssim_forward", &ssim_forward, "mean SSIM of two [H, W, 3] images and its partial maps", release());
+    m.def("ssim_backward", &ssim_backward, "gradient of ssim_forward with respect to the first image", release());
+}
