@@ -42,19 +42,20 @@ def ssim_ms(fn, size: int, threads: int, repeats: int = 300) -> float:
     return 1000 * (time.perf_counter() - start) / repeats
 
 
-def trainer_at(run: Path, work: Path, step_fraction: float, **settings) -> Trainer:
+def trainer_at(run: Path, work: Path, step_fraction: float, data: Path | None = None, **settings) -> Trainer:
     """A trainer resumed from ``run``'s checkpoint in a copy of the folder, at that fraction of its steps."""
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
     for name in ("checkpoint.pt", "config.json"):
         shutil.copy(run / name, work / name)
     cfg = config_from_dict(TrainConfig, json.loads((run / "config.json").read_text()))
-    cfg = apply_overrides(cfg, {"run": work, "threads": 0})
+    cfg = apply_overrides(cfg, {"run": work, "threads": 0} | ({"data": data} if data else {}))
     trainer = Trainer(cfg, progress=False)
     for key, value in settings.items():  # read per step: changed after the resume's settings check
         section, _, name = key.rpartition(".")
         setattr(getattr(trainer.cfg, section) if section else trainer.cfg, name, value)
-    trainer.step = int(step_fraction * cfg.total_iterations)
+    trainer.views_per_step = trainer.cfg.stage2.views_per_step  # (the scene has that many cameras a time)
+    trainer.step = int(step_fraction * trainer.total_steps)
     return trainer
 
 
@@ -68,12 +69,16 @@ def time_steps(trainer: Trainer, steps: int, threads: ThreadPolicy | None = None
             threads.check()
         trainer.train_step()
     ms = 1000 * (time.perf_counter() - start) / steps
-    return {"ms_per_step": round(ms, 2), **{k: round(1000 * v / steps, 2) for k, v in trainer.timings.items()}}
+    return {
+        "ms_per_step": round(ms, 2),
+        **{k: round(1000 * v / steps, 2) for k, v in trainer.timings.items()},
+    }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--run", type=Path, required=True, help="a trained run folder (e.g. the demo's)")
+    ap.add_argument("--data", type=Path, help="the run's scene folder, where it has moved")
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
@@ -92,14 +97,18 @@ def main() -> None:
     torch.set_num_threads(cores)
     with tempfile.TemporaryDirectory() as tmp:
         for views in (1, 2, 3, 4):
-            trainer = trainer_at(args.run, Path(tmp) / "run", 0.75, **{"stage2.views_per_step": views})
-            rows.append({"what": "training step", "setting": f"{views} view(s)", **time_steps(trainer, args.steps)})
+            trainer = trainer_at(
+                args.run, Path(tmp) / "run", 0.75, args.data, **{"stage2.views_per_step": views}
+            )
+            rows.append(
+                {"what": "training step", "setting": f"{views} view(s)", **time_steps(trainer, args.steps)}
+            )
         alone = rows[-4]["ms_per_step"]
         hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
         try:
             time.sleep(1.0)
             for label, count in ((f"{cores} threads, fixed", cores), ("chosen (train/threads.py)", 0)):
-                trainer = trainer_at(args.run, Path(tmp) / "run", 0.75)
+                trainer = trainer_at(args.run, Path(tmp) / "run", 0.75, args.data)
                 with ThreadPolicy(count) as policy:
                     timed = time_steps(trainer, max(20, args.steps // 4), policy)
                 rows.append(

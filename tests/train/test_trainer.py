@@ -490,7 +490,7 @@ def test_describe_names_the_images_steps_and_a_downscale_for_large_images(tiny_s
     line = trainer.describe()
     assert (
         "trace (tiny) on 9 images of 24x24 px with t <= 0.667" in line
-        and "4 steps on cpu" in line
+        and "4 steps (1 view(s) a step in stage 2) on cpu" in line
         and "world frame" in line
     )
     assert "note" not in line

@@ -6,6 +6,7 @@ import json
 
 import pytest
 import torch
+from tests.conftest import write_tiny_scene
 
 from tracegs.config import make_config
 from tracegs.train.trainer import Trainer
@@ -85,3 +86,12 @@ def test_training_with_a_batch_of_views_counts_each_view_for_densification(tiny_
 def test_views_per_step_must_be_positive(tiny_scene, tmp_path, bad):
     with pytest.raises(ValueError, match="views-per-step"):
         _trainer(tiny_scene, tmp_path / "run", views_per_step=bad)
+
+
+def test_a_monocular_video_gets_one_view_a_step_and_as_many_more_steps(tmp_path):
+    mono = write_tiny_scene(tmp_path / "mono", n_cams=2)  # one training camera per time
+    trainer = _trainer(mono, tmp_path / "run", views_per_step=4)
+    assert trainer.views_per_step == 1
+    assert trainer.dynamic_steps == 4 * 3 and trainer.total_steps == 2 + 12
+    multi = _trainer(write_tiny_scene(tmp_path / "multi"), tmp_path / "run2", views_per_step=4)
+    assert multi.views_per_step == 3 and multi.dynamic_steps == 4  # ceil(3 x 4 / 3)

@@ -125,9 +125,10 @@ class Stage2Config:
     """Largest f_defo displacement over the training span, as a fraction of the scene extent, of a
     Gaussian that ``skip_static`` marks static."""
     views_per_step: int = 1
-    """Cameras rendered per step at the step's time (a batch of views; fewer where fewer saw it): the
-    fields are evaluated once for that time and the loss is the mean over the views, so their cost is
-    shared (a multi-view capture has many cameras per time). 1 = the paper's one-view step."""
+    """Cameras rendered per step at the step's time (a batch of views): the fields are evaluated once
+    for that time and the loss is the mean over the views, so their cost is shared. Where fewer cameras
+    saw the times (a monocular video: one), stage 2 runs as many more steps (the same number of views).
+    1 = the paper's one-view step."""
 
 
 @dataclass
@@ -235,7 +236,8 @@ class TrainConfig:
     static_iterations: int = 3000
     """Stage 1: static 3DGS on the frames at t = 0."""
     dynamic_iterations: int = 37000
-    """Stage 2: deformation + dynamics on all training frames (the paper runs 40k in total)."""
+    """Stage 2: deformation + dynamics on all training frames (the paper runs 40k in total); steps of
+    ``stage2.views_per_step`` views, more where fewer cameras saw each time."""
     init_points: int = 100_000
     """Random initial Gaussians in the scene bounds (when the dataset has no points)."""
     init_extent: float = 1.3

@@ -73,13 +73,17 @@ class ViewDataset:
     def times(self) -> torch.Tensor:
         return torch.tensor([v.time for v in self.views])
 
-    def same_time(self, i: int) -> list[int]:
-        """The indices of the other views at view ``i``'s time (the other cameras of its frame)."""
+    def by_time(self) -> dict[float, list[int]]:
+        """The indices of the views at each time (the cameras of each frame)."""
         if not hasattr(self, "_by_time"):
             self._by_time: dict[float, list[int]] = {}
             for k, v in enumerate(self.views):
                 self._by_time.setdefault(v.time, []).append(k)
-        return [k for k in self._by_time[self.views[i].time] if k != i]
+        return self._by_time
+
+    def same_time(self, i: int) -> list[int]:
+        """The indices of the other views at view ``i``'s time (the other cameras of its frame)."""
+        return [k for k in self.by_time()[self.views[i].time] if k != i]
 
     def camera_centers(self) -> torch.Tensor:
         return torch.stack([v.camera.center.cpu() for v in self.views])

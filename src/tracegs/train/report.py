@@ -22,7 +22,7 @@ def report_step(trainer, stats: dict[str, float], bar, log) -> None:
     bar.set_description(f"train {stage(trainer)}", refresh=False)
     bar.set_postfix(loss=f"{stats['loss']:.4f}", gaussians=n, refresh=False)
     bar.update(1)
-    if trainer.step % trainer.cfg.log_every == 0 or trainer.step == trainer.cfg.total_iterations:
+    if trainer.step % trainer.cfg.log_every == 0 or trainer.step == trainer.total_steps:
         seconds = round(trainer.train_seconds, 2)  # training time so far, resumed runs included
         log.write(json.dumps({"step": trainer.step, "gaussians": n, "seconds": seconds, **stats}) + "\n")
         log.flush()
@@ -34,7 +34,8 @@ def describe(trainer) -> str:
     frame = "world frame" if trainer.model.fields_see_world else "cameras' frame"
     text = (
         f"{cfg.method} ({cfg.preset}) on {len(trainer.data)} images of {cam.width}x{cam.height} px with "
-        f"t <= {trainer.t_max:.3g}, {cfg.total_iterations} steps on {trainer.device} "
+        f"t <= {trainer.t_max:.3g}, {trainer.total_steps} steps ({trainer.views_per_step} view(s) a step in "
+        f"stage 2) on {trainer.device} "
         f"({resolve_backend(cfg.backend, trainer.device)} rasteriser, fields in the {frame})"
     )
     pixels = cam.width * cam.height

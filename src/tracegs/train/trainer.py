@@ -115,7 +115,12 @@ class Trainer:
         self.model.set_field_frame(*field_frame(cfg, self.data))
         self.optimizers = gaussian_optimizers(self.model.gaussians, cfg.optim, self.extent)
         self.field_opt = field_optimizer(self.model.field_parameter_groups(), cfg.optim)
-        self.strategy = DefaultStrategy(cfg.densify, self.extent, cfg.total_iterations)
+        counts = sorted(len(v) for v in self.data.by_time().values())  # cameras per time
+        self.views_per_step = max(1, min(cfg.stage2.views_per_step, counts[len(counts) // 2]))
+        views = cfg.dynamic_iterations * cfg.stage2.views_per_step  # as many where fewer cameras saw a time
+        self.dynamic_steps = 0 if cfg.method == "static" else math.ceil(views / self.views_per_step)
+        self.total_steps = cfg.static_iterations + self.dynamic_steps
+        self.strategy = DefaultStrategy(cfg.densify, self.extent, self.total_steps)
         self.strategy_state = self.strategy.initialize_state()
         self.step, self.train_seconds = 0, 0.0
         self.lr_scale = 1.0  # lowered by the NaN guard
@@ -139,7 +144,7 @@ class Trainer:
     def time_limit(self, dyn_step: int) -> float:
         """End of the sampled time range at a dynamic step: it grows in ``stage2.time_growth_stages``
         equal steps over the first ``stage2.time_growth_fraction`` of the stage."""
-        growth = self.cfg.stage2.time_growth_fraction * self.cfg.dynamic_iterations
+        growth = self.cfg.stage2.time_growth_fraction * self.dynamic_steps
         stages = self.cfg.stage2.time_growth_stages
         frac = 1.0 if growth <= 0 else min(1.0, (1 + (stages * dyn_step) // growth) / stages)
         return self.t_max * frac
@@ -151,8 +156,8 @@ class Trainer:
         return random.choice(allowed)
 
     def _views_at_time(self, index: int) -> list:
-        """View ``index`` and up to ``stage2.views_per_step`` - 1 other cameras' views at its time, at random."""
-        others, extra = self.data.same_time(index), self.cfg.stage2.views_per_step - 1
+        """View ``index`` and up to ``views_per_step`` - 1 other cameras' views at its time, at random."""
+        others, extra = self.data.same_time(index), self.views_per_step - 1
         chosen = random.sample(others, min(extra, len(others))) if extra > 0 else []
         return [self.data[i] for i in [index, *chosen]]
 
@@ -181,7 +186,7 @@ class Trainer:
     def _static_marking_step(self) -> int:
         """Step at which ``stage2.skip_static`` marks the static Gaussians: densification has stopped
         (the set of Gaussians is final) and the sampled time range covers the training span."""
-        growth = math.ceil(self.cfg.stage2.time_growth_fraction * self.cfg.dynamic_iterations)
+        growth = math.ceil(self.cfg.stage2.time_growth_fraction * self.dynamic_steps)
         return max(self.strategy.refine_stop, self.cfg.static_iterations + growth)
 
     # ----- one step -------------------------------------------------------------------------------
@@ -189,11 +194,11 @@ class Trainer:
         """This step's learning rates (the schedules of ``optim.py``) times the NaN guard's ``lr_scale``."""
         cfg, scale = self.cfg, self.lr_scale
         lrs = gaussian_lrs(cfg.optim, self.extent)
-        lrs["means"] = means_lr(cfg.optim, self.extent, step, cfg.total_iterations)
+        lrs["means"] = means_lr(cfg.optim, self.extent, step, self.total_steps)
         for name, opt in self.optimizers.items():
             set_lr(opt, lrs[name] * scale)
         if not static:
-            fields = field_lrs(cfg.optim, self.extent, dyn_step, cfg.dynamic_iterations)
+            fields = field_lrs(cfg.optim, self.extent, dyn_step, self.dynamic_steps)
             set_group_lrs(self.field_opt, {k: v * scale for k, v in fields.items()})
 
     def _zero_grads(self) -> None:
@@ -319,8 +324,8 @@ class Trainer:
         return summary
 
     def _train_steps(self) -> bool:
-        """The steps up to ``total_iterations``, each checkpoint and the last one saved; whether any ran."""
-        cfg, total, start = self.cfg, self.cfg.total_iterations, self.step
+        """The steps up to ``total_steps``, each checkpoint and the last one saved; whether any ran."""
+        cfg, total, start = self.cfg, self.total_steps, self.step
         self._in_step = False
         bar = tqdm(total=total, initial=self.step, disable=not self.progress, desc=f"train {stage(self)}")
         log = (self.run / LOG).open("a")
