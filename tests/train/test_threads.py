@@ -81,3 +81,9 @@ def test_a_training_beside_busy_cores_takes_the_free_one(monkeypatch):
     monkeypatch.setattr(threads, "RECHECK_SECONDS", 0.0)
     with ThreadPolicy(most=len(cpus)) as policy:  # counted again when they are gone
         assert policy.check() >= 1
+
+
+def test_the_work_of_children_this_process_waited_for_is_its_own():
+    before = threads.own_ticks()
+    subprocess.run([sys.executable, "-c", "x = sum(i * i for i in range(3_000_000))"], check=True)
+    assert threads.own_ticks() - before >= 1  # at least a tick of the child's CPU time
