@@ -100,9 +100,9 @@ class ThreadPolicy:
         if self.threads > 0:
             torch.set_num_threads(self.threads)
         elif self.adaptive:
-            self._last = self._sample()
+            before = self._sample()
             time.sleep(SAMPLE_SECONDS)
-            self._set(busy_cores(self._last, self._sample(), len(self.cpus)))
+            self._set(before, self._sample())
         return torch.get_num_threads()
 
     def check(self) -> int:
@@ -110,12 +110,13 @@ class ThreadPolicy:
         ``RECHECK_SECONDS``) and set the thread count anew; returns it."""
         now = time.perf_counter()
         if self.adaptive and self._last is not None and now - self._last_time >= RECHECK_SECONDS:
-            before = self._last
-            self._set(busy_cores(before, self._sample(), len(self.cpus)))
+            self._set(self._last, self._sample())
         return torch.get_num_threads()
 
-    def _set(self, busy: float) -> None:
-        self._last, self._last_time = self._sample(), time.perf_counter()
+    def _set(self, before: tuple[int, int, float], now: tuple[int, int, float]) -> None:
+        """Set the thread count from the busy cores between the samples ``before`` and ``now``."""
+        busy = busy_cores(before, now, len(self.cpus))
+        self._last, self._last_time = now, time.perf_counter()
         n = free_threads(busy, len(self.cpus), self.most)
         if n != torch.get_num_threads() or not self.changes:
             torch.set_num_threads(n)

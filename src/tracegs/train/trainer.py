@@ -157,8 +157,10 @@ class Trainer:
 
     def _views_at_time(self, index: int) -> list:
         """View ``index`` and up to ``views_per_step`` - 1 other cameras' views at its time, at random."""
-        others, extra = self.data.same_time(index), self.views_per_step - 1
-        chosen = random.sample(others, min(extra, len(others))) if extra > 0 else []
+        extra, chosen = self.views_per_step - 1, []
+        if extra > 0:  # (the one-view step looks up nothing)
+            others = self.data.same_time(index)
+            chosen = random.sample(others, min(extra, len(others)))
         return [self.data[i] for i in [index, *chosen]]
 
     def _t_prime(self, t: float) -> float:
