@@ -24,12 +24,20 @@ from pathlib import Path
 
 import torch
 
-from .config import TrainConfig, config_from_dict, config_to_dict, cpu_has_amx_bf16
+from .config import TrainConfig, config_from_dict, config_to_dict
 from .extrapolate import ExtrapolationState, has_policy
 from .models.gaussians import empty_like_params
 from .models.trace import TraceModel
 from .run_compat import migrate_config
-from .utils import LockHeld, atomic_torch_save, atomic_write_text, exclusive_lock, resolve_device
+from .utils import (
+    LockHeld,
+    atomic_torch_save,
+    atomic_write_text,
+    cpu_has_amx_bf16,
+    exclusive_lock,
+    first_line,
+    resolve_device,
+)
 
 CONFIG, CHECKPOINT, EXTRAPOLATION, SUMMARY, LOG, LOCK = (
     "config.json",
@@ -121,19 +129,14 @@ def load_tensors(path: Path, device: torch.device | str = "cpu") -> dict:
     try:
         return torch.load(path, map_location=device, weights_only=True)
     except pickle.UnpicklingError as err:
-        first = _first_line(err)
+        first = first_line(err)
         raise RunError(
             f"{path}: refused: it holds pickled Python objects other than tensors and plain data, which "
             f"could run code when loaded ({first}). tracegs never writes such objects; open run "
             "folders only from sources you trust."
         ) from None
     except (RuntimeError, EOFError, OSError) as err:
-        raise RunError(f"{path}: not a readable checkpoint ({_first_line(err)})") from None
-
-
-def _first_line(err: BaseException) -> str:
-    lines = str(err).strip().splitlines()
-    return lines[0] if lines else type(err).__name__
+        raise RunError(f"{path}: not a readable checkpoint ({first_line(err)})") from None
 
 
 CHECKPOINT_KEYS = ("model", "step", "train_seconds", "t_max")
@@ -203,7 +206,7 @@ def _trained_model(cfg: TrainConfig, run: Path, device: str) -> tuple[TraceModel
     except (RuntimeError, KeyError, ValueError) as err:
         raise RunError(
             f"{path}: a checkpoint of another tracegs version, or of other settings than {run / CONFIG} "
-            f"({_first_line(err)}); train into a new --run folder"
+            f"({first_line(err)}); train into a new --run folder"
         ) from None
     # A run trained where bf16 paid (a CPU with AMX, as `cpu-fast` chooses) is rendered in fp32 on
     # CPUs without AMX: there bf16 is slower, and fp32 gives the fields' values exactly.

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import random
 import socket
@@ -161,6 +162,13 @@ def atomic_write_image(path: Path, image: torch.Tensor | np.ndarray) -> Path:
     return _atomic(path, lambda tmp: iio.imwrite(tmp, arr, extension=Path(path).suffix or ".png"))
 
 
+def first_line(err: BaseException) -> str:
+    """The first line of an exception's message (its type's name when it has none), for one-line errors."""
+    lines = str(err).strip().splitlines()
+    return lines[0] if lines else type(err).__name__
+
+
+@functools.cache
 def cpu_has_amx_bf16() -> bool:
     """True on x86 CPUs with AMX-BF16 tiles (there bf16 autocast makes the field MLPs ~1.5-3x faster)."""
     try:

@@ -68,7 +68,7 @@ def test_remove_and_refine_schedule():
     means2d = torch.zeros(5, 2, requires_grad=True)
     (means2d * torch.arange(10.0).reshape(5, 2)).sum().backward()
     info = {"means2d": means2d, "radii": torch.tensor([1, 1, 1, 1, 0]), "width": 10, "height": 10}
-    report = strategy.step_post_backward(params, opts, state, step=1, render_info=info)
+    report = strategy.step_post_backward(params, opts, state, step=1, render_infos=[info])
     _check_aligned(params, opts)
     # rows 0..3 are visible with a gradient and small (0.05 <= 0.01 * extent) -> cloned; row 4 is not seen
     assert report["cloned"] == 4 and report["split"] == 0
@@ -91,7 +91,7 @@ def test_refinement_stops_by_a_fraction_of_short_runs():
     means2d.sum().backward()
     info = {"means2d": means2d, "radii": torch.ones(6), "width": 10, "height": 10}
     assert (
-        strategy.step_post_backward(params, opts, strategy.initialize_state(), step=2, render_info=info) == {}
+        strategy.step_post_backward(params, opts, strategy.initialize_state(), step=2, render_infos=[info]) == {}
     )
     assert torch.equal(params["opacities"], before)  # no reset after the stop either
 
@@ -108,7 +108,7 @@ def test_growth_under_a_budget_takes_the_largest_gradients():
     (means2d[:, 0] * weights).sum().backward()
     info = {"means2d": means2d, "radii": torch.ones(6), "width": 2, "height": 2}
     before = params["means"].detach().clone()
-    report = strategy.step_post_backward(params, opts, strategy.initialize_state(), step=1, render_info=info)
+    report = strategy.step_post_backward(params, opts, strategy.initialize_state(), step=1, render_infos=[info])
     _check_aligned(params, opts)
     # budget 8 - 6 = 2: rows 3 (6.0, large -> split) and 1 (5.0, small -> cloned), not the first rows
     assert report == {"cloned": 1, "split": 1, "pruned": 0}

@@ -82,16 +82,11 @@ def _flag_given(argv: list[str], flag: str) -> bool:
     return any(a == flag or a.startswith(flag + "=") for a in argv)
 
 
-def train_config(argv: list[str]) -> TrainConfig:
-    """The config of `tracegs train --data D --run R [--preset P] [--section.field V ...]`: tyro reads
-    ``--preset`` first (``return_unknown_args``), then every flag with that preset's values as the
-    defaults (tyro's pattern for overridable configs); ``--help`` shows the preset's values. The config
-    is checked (``config.validate``), its paths made absolute (a run is read from any folder)."""
-    return _train_request(argv)[0]
-
-
 def _train_request(argv: list[str]) -> tuple[TrainConfig, Train]:
-    """The config that `tracegs train ARGV` trains and the command's own flags (``Train``)."""
+    """The config that `tracegs train ARGV` trains and the command's own flags (``Train``): tyro reads
+    ``--preset`` first (``return_unknown_args``), then every flag with that preset's values as the
+    defaults (``--help`` shows them). The config is checked (``config.validate``), its paths made
+    absolute (a run is read from any folder)."""
     from ..config import PRESETS, validate
     from ..run import CONFIG, load_config
 
@@ -132,7 +127,7 @@ class _DeviceChoice:
 
 
 def run_train(argv: list[str]) -> dict:
-    """`tracegs train`: train the run that ``train_config(argv)`` describes (or ``--resume RUN``)."""
+    """`tracegs train`: train the run that ``_train_request(argv)`` describes (or ``--resume RUN``)."""
     from ..train.trainer import Trainer
 
     cfg, flags = _train_request(argv)

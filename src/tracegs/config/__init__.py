@@ -21,7 +21,7 @@ from typing import Literal
 
 from ..models.deformation import DeformationConfig
 from ..models.dynamics import DynamicsConfig
-from ..utils import cpu_has_amx_bf16  # noqa: F401  (part of the config API: cpu-fast reads it)
+from ..utils import cpu_has_amx_bf16
 from .validate import check_setting, flag_name, validate  # noqa: F401  (part of the config API)
 
 

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from plyfile import PlyData, PlyElement
 
-from ..utils import _atomic
+from ..utils import _atomic, first_line
 
 NORMALS = ("nx", "ny", "nz")
 """Written as zeros (viewers expect them); a PLY without them is read all the same."""
@@ -64,7 +64,7 @@ def read_gaussians(path: Path, device: torch.device | str = "cpu") -> dict[str, 
     try:
         ply = PlyData.read(str(path))
     except Exception as err:  # plyfile raises several types for malformed files
-        raise ValueError(f"{path}: cannot read it as a PLY ({str(err).splitlines()[0]})") from None
+        raise ValueError(f"{path}: cannot read it as a PLY ({first_line(err)})") from None
     if "vertex" not in ply:
         raise ValueError(f"{path}: not a 3DGS PLY (no vertex element)")
     vertex = ply["vertex"]

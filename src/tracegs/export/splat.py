@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from ..models.gaussians import SH_C0
-from ..utils import _atomic
+from ..utils import atomic_write_bytes
 
 SPLAT_DTYPE = np.dtype(
     [("position", "<f4", (3,)), ("scale", "<f4", (3,)), ("rgba", "u1", (4,)), ("rotation", "u1", (4,))]
@@ -54,8 +54,7 @@ def gaussians_to_splat(params: dict[str, torch.Tensor]) -> np.ndarray:
 def write_splat(params: dict[str, torch.Tensor], path: Path) -> Path:
     """Gaussians (a parameter dict, see :func:`gaussians_to_splat`) as a ``.splat`` file, written
     atomically."""
-    data = gaussians_to_splat(params).tobytes()
-    return _atomic(Path(path), lambda tmp: Path(tmp).write_bytes(data))
+    return atomic_write_bytes(Path(path), gaussians_to_splat(params).tobytes())
 
 
 def read_splat(path: Path) -> dict[str, np.ndarray]:

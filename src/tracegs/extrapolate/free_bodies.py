@@ -96,17 +96,24 @@ def window_means(model, t0: float, window: int) -> tuple[torch.Tensor, list[torc
     return times, [model.deform(float(t))["means"] for t in times]
 
 
-def moving_groups(model, t0: float, extent: float, window: int) -> tuple:
+def moving_groups(model, state: ExtrapolationState, t0: float, extent: float, window: int) -> tuple:
     """``(path, moved, u, groups)``: f_defo's means over the ``window`` frames before ``t0``
     (``window_means``), the [N] bool Gaussians it moves by more than 0.25% of the scene ``extent`` over
     them, f_trd's particle velocities [N, 3] at ``t0``, and the [N] labels of the rigid groups of the
-    moved ones (``rigid_components``; 0: none). Free bodies and joint parts are found among them."""
+    moved ones (``rigid_components``; 0: none). Free bodies and joint parts are found among them, so
+    the result is kept in ``state.cache`` for the calibration's next call."""
+    key = (t0, extent, window, model.gaussians["means"].shape[0])
+    cached = state.cache.get("moving_groups")
+    if cached is not None and cached[0] == key:
+        return cached[1]
     path = window_means(model, t0, window)
     x0, before = path[1][0], path[1][-1]
     moved = (x0 - before).norm(dim=-1) > 0.0025 * extent
     params = model.query_dynamics(x0, t0)
     u = particle_velocity(x0, params.velocity, params.angular_velocity)
-    return path, moved, u, rigid_components(x0, moved, u, 0.0025 * extent).to(x0.device)
+    groups = path, moved, u, rigid_components(x0, moved, u, 0.0025 * extent).to(x0.device)
+    state.cache["moving_groups"] = (key, groups)
+    return groups
 
 
 def fit_free_body(
@@ -203,7 +210,7 @@ def choose_free_bodies(
     t1 = t0 - dyn.free_body_backtest * model.dt_max
     if t1 - 2 * model.dt_max < -1e-9:  # too early in the span for a parabola before the backtest
         return none, []
-    path_t0, moved, u, parts = moving_groups(model, t0, extent, dyn.free_body_window)
+    path_t0, moved, u, parts = moving_groups(model, state, t0, extent, dyn.free_body_window)
     x0 = path_t0[1][0]
     backtest = path_t1 = before_t1 = None
     chosen, report = [], []

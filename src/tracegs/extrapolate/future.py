@@ -42,51 +42,64 @@ def gaussians_at(model, state: ExtrapolationState, t: float) -> dict[str, torch.
     t0 = handover_time(model, state.t_max)
     if t <= t0:
         return model.deform(t)
-    gaussians = with_free_bodies(model, state, t0, t, physics_from(model, state, t0, t))
-    return with_joint_laws(model, state, t0, t, gaussians)
+    start = model.deform(t0)  # where the physics, the free bodies and the joint parts start from
+    gaussians = with_free_bodies(model, state, t0, t, physics_from(model, state, t0, t, start=start), start)
+    return with_joint_laws(model, state, t0, t, gaussians, start)
+
+
+def _chosen_here(entry: dict | None, t0: float, n: int) -> bool:
+    """Whether a stored choice (free bodies, joint parts) was made for this handover and these ``n``
+    Gaussians (not for another handover or another set of Gaussians)."""
+    return abs(entry["t0"] - t0) <= 1e-9 and entry["labels"].shape[0] == n
 
 
 def with_free_bodies(
-    model, state: ExtrapolationState, t0: float, t: float, gaussians: dict[str, torch.Tensor]
-) -> dict[str, torch.Tensor]:
+    model, state: ExtrapolationState, t0: float, t: float, gaussians: dict, start: dict
+) -> dict:
     """``gaussians`` (the learned physics at ``t``) with the free bodies' Gaussians moved as free bodies
-    from f_defo's state at ``t0`` (``physics/free_body.py``)."""
+    from ``start``, f_defo's state at ``t0`` (``physics/free_body.py``)."""
     bodies = state.free_bodies
     if not model.cfg.extrapolation.free_bodies or bodies is None or not len(bodies["bodies"]):
         return gaussians
+    if not _chosen_here(bodies, t0, gaussians["means"].shape[0]):
+        return gaussians
     labels = bodies["labels"].to(gaussians["means"].device)
-    if abs(bodies["t0"] - t0) > 1e-9 or labels.shape[0] != gaussians["means"].shape[0]:
-        return gaussians  # chosen for another handover or another set of Gaussians
-    return apply_free_bodies(gaussians, model.deform(t0), labels, bodies["bodies"], t - t0)
+    return apply_free_bodies(gaussians, start, labels, bodies["bodies"], t - t0)
 
 
 def with_joint_laws(
-    model, state: ExtrapolationState, t0: float, t: float, gaussians: dict[str, torch.Tensor]
-) -> dict[str, torch.Tensor]:
-    """``gaussians`` with the joint parts' Gaussians moved by their force laws from f_defo's state at
-    ``t0`` (``joints.py``; ``extrapolation.joint_laws``)."""
+    model, state: ExtrapolationState, t0: float, t: float, gaussians: dict, start: dict
+) -> dict:
+    """``gaussians`` with the joint parts' Gaussians moved by their force laws from ``start``, f_defo's
+    state at ``t0`` (``joints.py``; ``extrapolation.joint_laws``)."""
     joints = state.joint_laws
     if not model.cfg.extrapolation.joint_laws or joints is None or not joints["parts"]:
         return gaussians
-    if abs(joints["t0"] - t0) > 1e-9 or joints["labels"].shape[0] != gaussians["means"].shape[0]:
-        return gaussians  # chosen for another handover or another set of Gaussians
+    if not _chosen_here(joints, t0, gaussians["means"].shape[0]):
+        return gaussians
     from .joints import apply_joint_laws  # joints.py builds on this module
 
-    return apply_joint_laws(gaussians, model.deform(t0), joints, t)
+    return apply_joint_laws(gaussians, start, joints, t)
 
 
 def physics_from(
-    model, state: ExtrapolationState, t0: float, t: float, moving: torch.Tensor | None = None
+    model,
+    state: ExtrapolationState,
+    t0: float,
+    t: float,
+    moving: torch.Tensor | None = None,
+    start: dict[str, torch.Tensor] | None = None,
 ) -> dict[str, torch.Tensor]:
     """Deform to ``t0`` and chain integration steps of at most one frame interval to ``t`` (forward or
     back), leaving the Gaussians that hold still at their ``t0`` state.
 
     ``moving`` [N] bool: the Gaussians above the freeze threshold (default: from ``state``); the still
     codes of ``still.py`` then apply on top of it. With ``extrapolation.hold_surface`` a Gaussian that
-    paints a still surface stops at the first step that would take it off that surface.
+    paints a still surface stops at the first step that would take it off that surface. ``start``:
+    ``model.deform(t0)`` where the caller has it.
     """
     cfg = model.cfg
-    gaussians = model.deform(t0)
+    gaussians = model.deform(t0) if start is None else start
     means, quats = gaussians["means"], quat_normalize(gaussians["quats"])
     params = model.query_dynamics(means, t0)
     moving = moving_after_handover(model, state, t0, means, params, moving)

@@ -24,7 +24,7 @@ import math
 import numpy as np
 import torch
 
-from ..physics.force_law_fit import DEFAULT_LAWS, FittedLaw, choose_law, fit_law
+from ..physics.force_law_fit import DEFAULT_LAWS, FittedLaw, choose_law
 from ..physics.free_body import fit_rigid_transform, split_rigid
 from ..physics.joint import Hinge, Slider, fit_hinge, fit_slider, hinge_transforms, slider_transforms
 from ..physics.so3 import quat_multiply, quat_normalize, rotmat_to_quat
@@ -119,11 +119,6 @@ def _finite(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
-def _held_count(frames: int, holdout: float) -> int:
-    """Frames held out at the end of ``frames``, as ``choose_law`` holds them out (at least one)."""
-    return max(1, round(holdout * frames))
-
-
 class _LearnedBacktest:
     """The learned physics started at f_defo's state at ``t1`` and run to the ``times`` after it (each
     Gaussian's mean; computed once for every part held out from the same frame)."""
@@ -166,10 +161,9 @@ def choose_part_law(
     t = np.asarray(times)
     choice = choose_law(t, q, DEFAULT_LAWS, settings.joint_law_holdout)
     fitted = choice.fitted
-    n = len(t) - _held_count(len(t), settings.joint_law_holdout)
     # the part's positions on the held-out frames: the law fitted to the frames before them, against
     # the learned physics started at the last of those frames
-    before = fit_law(t[:n], q[:n], fitted.name)
+    before, n = choice.held_out_fit, choice.fitted_samples
     truth = torch.stack([p.detach().double().cpu() for p in path[n:]])
     law_means = _positions(x0, *joint_transforms(joint, before.predict(t[n:])))
     learned_means = learned.means(float(t[n - 1]), [float(s) for s in t[n:]])[:, rows.cpu()]
@@ -210,7 +204,7 @@ def choose_joint_laws(
     times = [max(0.0, t0 - k * model.dt_max) for k in range(steps, -1, -1)]
     if len(times) < MIN_FRAMES:
         return None, []
-    (_, window), moved, u, groups = moving_groups(model, t0, extent, settings.free_body_window)
+    (_, window), moved, u, groups = moving_groups(model, state, t0, extent, settings.free_body_window)
     x0 = window[0]
     bodies = state.free_bodies
     free = torch.zeros_like(moved)

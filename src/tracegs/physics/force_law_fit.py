@@ -151,10 +151,16 @@ def _split(t, q, holdout_fraction: float) -> int:
 def held_out_error(t, q, name: str, holdout_fraction: float = 0.25) -> float:
     """RMS error on the last ``holdout_fraction`` of the samples of the law ``name`` fitted to the rest
     and integrated on from there."""
-    t, q = _array(t), _array(q)
+    return _held_out_fit(_array(t), _array(q), name, holdout_fraction)[1]
+
+
+def _held_out_fit(
+    t: np.ndarray, q: np.ndarray, name: str, holdout_fraction: float
+) -> tuple[FittedLaw, float]:
+    """``held_out_error``'s fit of ``name`` to the first samples, and its RMS error on the rest."""
     n = _split(t, q, holdout_fraction)
     fitted = fit_law(t[:n], q[:n], name)
-    return float(np.sqrt(np.mean((fitted.predict(t[n:]).numpy() - q[n:]) ** 2)))
+    return fitted, float(np.sqrt(np.mean((fitted.predict(t[n:]).numpy() - q[n:]) ** 2)))
 
 
 def hold_velocity_error(t, q, holdout_fraction: float = 0.25, samples: int = 4) -> float:
@@ -197,6 +203,10 @@ class LawChoice:
     fitted: FittedLaw
     held_out: dict[str, float]
     backtest: Backtest
+    held_out_fit: FittedLaw
+    """The chosen law fitted without the held-out samples (the fit ``held_out`` scores)."""
+    fitted_samples: int
+    """How many of the first samples ``held_out_fit`` was fitted to (the rest were held out)."""
 
 
 def choose_law(
@@ -208,9 +218,16 @@ def choose_law(
     as good, and the first such in ``laws`` order wins: the simpler law, when ``laws`` is simplest
     first (as ``DEFAULT_LAWS`` and ``LAWS`` are)."""
     t, q = _array(t), _array(q)
-    held = {name: held_out_error(t, q, name, holdout_fraction) for name in laws}
+    fits = {name: _held_out_fit(t, q, name, holdout_fraction) for name in laws}
+    held = {name: error for name, (_, error) in fits.items()}
     best = min(held.values())
     good_enough = best * (1 + tie) + 1e-6 * float(np.ptp(q))
     name = next(n for n in laws if held[n] <= good_enough)
     baseline = hold_velocity_error(t, q, holdout_fraction)
-    return LawChoice(fit_law(t, q, name), held, Backtest(name, held[name], baseline))
+    return LawChoice(
+        fit_law(t, q, name),
+        held,
+        Backtest(name, held[name], baseline),
+        fits[name][0],
+        _split(t, q, holdout_fraction),
+    )

@@ -60,14 +60,14 @@ class DefaultStrategy:
         optimizers: dict[str, torch.optim.Optimizer],
         state: dict[str, Any],
         step: int,
-        render_info: dict | list[dict],
+        render_infos: list[dict],
     ) -> dict[str, int]:
-        """Accumulate gradients of this step (of each view it rendered, ``render_info`` a list);
-        refine on schedule. Returns counts of what changed."""
+        """Accumulate gradients of this step (of each view it rendered); refine on schedule. Returns
+        counts of what changed."""
         cfg = self.cfg
         if step >= self.refine_stop:
             return {}
-        for info in [render_info] if isinstance(render_info, dict) else render_info:
+        for info in render_infos:
             self._accumulate(params, state, info)
         report: dict[str, int] = {}
         if step > cfg.refine_start and step % cfg.refine_every == 0:

@@ -109,7 +109,7 @@ class ThreadPolicy:
         """Between steps: count the busy cores over the time since the last count (every
         ``RECHECK_SECONDS``) and set the thread count anew; returns it."""
         now = time.perf_counter()
-        if self.adaptive and self._last is not None and now - self._last_time >= RECHECK_SECONDS:
+        if self._last is not None and now - self._last_time >= RECHECK_SECONDS:  # (set when adaptive)
             self._set(self._last, self._sample())
         return torch.get_num_threads()
 
