@@ -24,21 +24,21 @@ from ..physics.free_body import FreeBody
 
 
 def _gt(data: Path):
-    from ..data.synth import part_transforms
+    """``(points, part_ids, transforms, motions)`` of ``data/gt``: ``transforms(t)`` [P, 4, 4] rest ->
+    world, ``motions`` by part id (``motion.json`` read once)."""
+    from ..data.synth.motion import transforms_at
 
     gt = Path(data) / "gt"
     pts = np.load(gt / "points.npz")
-    return pts["points"], pts["part_ids"], lambda t: part_transforms(gt / "motion.json", t)
+    motions = _motions(data)
+    return pts["points"], pts["part_ids"], lambda t: transforms_at(motions, t), motions
 
 
 def ground_truth_problem(data: Path) -> str | None:
     """Why ``data/gt`` cannot be compared with (missing files, or another generator's layout), in words,
     or None when it holds what ``tracegs synth`` writes: ``motion.json`` (parts with ids 1..P, axis,
     angular velocity and acceleration) and ``points.npz`` (``points`` [M, 3], ``part_ids`` [M] in 1..P)."""
-    import json
     import zipfile
-
-    from ..data.synth.motion import load_motions
 
     gt = Path(data) / "gt"
     motion, points = gt / "motion.json", gt / "points.npz"
@@ -46,10 +46,10 @@ def ground_truth_problem(data: Path) -> str | None:
         if not path.is_file():
             return f"{path} not found"
     try:
-        records = json.loads(motion.read_text())["parts"]
-        count = len(load_motions(motion))
-        for r in records:
-            _compare_omega(np.zeros(3), r, 0.0)
+        motions = _motions(data)
+        count = len(motions)
+        for m in motions:
+            m.angular_velocity_at(0.0)
     except (ValueError, KeyError, TypeError, IndexError) as err:
         return f"{motion}: not the layout of tracegs synth ({type(err).__name__}: {err})"
     try:
@@ -89,7 +89,7 @@ def _transform(T: np.ndarray, x: torch.Tensor) -> torch.Tensor:
 
 def _parts_at(model, state, t: float, gt, radius: float) -> tuple[torch.Tensor, torch.Tensor]:
     """``(means [N, 3], part id [N])`` of the Gaussians at time ``t`` (0: on no part)."""
-    points, part_ids, transforms = gt
+    points, part_ids, transforms, _ = gt
     T = transforms(t)  # [P, 4, 4], rest -> world at t
     parts = sorted(int(p) for p in np.unique(part_ids))
     world = np.concatenate([points[part_ids == p] @ T[p - 1][:3, :3].T + T[p - 1][:3, 3] for p in parts])
@@ -122,7 +122,7 @@ def physics_errors(model, state, data: Path, times: list[float], radius: float =
             err = (x_pred[sel] - _transform(rel, x_start[sel])).norm(dim=-1).mean()
             per_time[p].append({"t": t, "error": float(err)})
     omega = _spin_at(model, state, x_start, t_max)
-    motions = _motions(data)
+    motions = gt[3]
     for p in parts:
         sel = owner == p
         entry = {"gaussians": int(sel.sum()), "trajectory": per_time[p]}
@@ -136,7 +136,7 @@ def physics_errors(model, state, data: Path, times: list[float], radius: float =
     return result
 
 
-def _omega_over_span(model, state, gt, motions: list[dict], radius: float) -> list[dict]:
+def _omega_over_span(model, state, gt, motions: list, radius: float) -> list[dict]:
     """Relative error of each rotating part's median learned |w| at query times across the training
     span: fractions of t_max and the handover time."""
     t_max = state.t_max
@@ -186,16 +186,15 @@ def _learned_angular_velocity(model, means: torch.Tensor, t: float) -> torch.Ten
     return model.query_dynamics(means, t).angular_velocity
 
 
-def _motions(data: Path) -> list[dict]:
-    import json
+def _motions(data: Path) -> list:
+    """The parts' motions of ``data/gt/motion.json``, by part id (index p - 1 for part p)."""
+    from ..data.synth.motion import load_motions  # (data.synth loads the renderer's modules)
 
-    return json.loads((Path(data) / "gt" / "motion.json").read_text())["parts"]
+    return load_motions(Path(data) / "gt" / "motion.json")
 
 
-def _compare_omega(learned: np.ndarray, motion: dict, t: float) -> dict:
-    from ..data.synth.motion import motion_from_record  # (data.synth loads the renderer's modules)
-
-    gt = np.asarray(motion_from_record(motion).angular_velocity_at(t), dtype=np.float64).reshape(3)
+def _compare_omega(learned: np.ndarray, motion, t: float) -> dict:
+    gt = np.asarray(motion.angular_velocity_at(t), dtype=np.float64).reshape(3)
     gt_mag, mag = float(np.linalg.norm(gt)), float(np.linalg.norm(learned))
     out = {"omega_learned": learned.tolist(), "omega_gt": gt.tolist(), "omega_abs_error": abs(mag - gt_mag)}
     if gt_mag > 1e-6:

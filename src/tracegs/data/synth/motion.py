@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .kinematics import Motion, axis_angle_to_matrix, from_fields
+from .kinematics import Motion, axis_angle_to_matrix, from_fields, plain, rigid_transform, unit
 from .varying import CLOSED_FORMS, Carried
 
 FORMULA = "theta(t) = w*t + alpha*t^2/2; x(t) = R(axis, theta(t)) (x0 - pivot) + pivot + v*t + a*t^2/2"
@@ -52,10 +52,7 @@ class RigidMotion:
     """a: constant acceleration of the pivot (gravity for a projectile)."""
 
     def __post_init__(self):
-        n = np.linalg.norm(self.axis)
-        if not np.isfinite(n) or n < 1e-9:
-            raise ValueError(f"rotation axis must be a non-zero vector, got {self.axis}")
-        object.__setattr__(self, "axis", tuple(float(x) / n for x in self.axis))
+        object.__setattr__(self, "axis", unit(self.axis, "rotation axis"))
 
     def transform(self, t) -> np.ndarray:
         """[..., 4, 4] rest-pose -> world at times ``t`` [...] (:func:`motion_transform`)."""
@@ -68,7 +65,9 @@ class RigidMotion:
 
     def record(self) -> dict:
         """``type`` (the label ``kind``) and the fields."""
-        return {"type": self.kind, **_plain(asdict(self))}
+        fields = plain(asdict(self))
+        fields.pop("kind")
+        return {"type": self.kind, **fields}
 
 
 def rotation_angle(motion: RigidMotion, t: np.ndarray) -> np.ndarray:
@@ -87,12 +86,7 @@ def motion_transform(motion: RigidMotion, t) -> np.ndarray:
     """[..., 4, 4] rest-pose -> world rigid transform of the part at times ``t`` [...]."""
     t = np.asarray(t, dtype=np.float64)
     R = axis_angle_to_matrix(motion.axis, rotation_angle(motion, t))
-    pivot = np.asarray(motion.pivot, dtype=np.float64)
-    out = np.zeros((*t.shape, 4, 4))
-    out[..., :3, :3] = R
-    out[..., :3, 3] = pivot - R @ pivot + pivot_displacement(motion, t)
-    out[..., 3, 3] = 1.0
-    return out
+    return rigid_transform(R, motion.pivot, pivot_displacement(motion, t))
 
 
 def transforms_at(motions: list[Motion], t) -> np.ndarray:
@@ -108,12 +102,6 @@ def angular_velocities_at(motions: list[Motion], t) -> np.ndarray:
 def motion_record(name: str, part_id: int, motion: Motion) -> dict:
     """One part's entry in ``gt/motion.json``."""
     return {"name": name, "id": part_id, **motion.record()}
-
-
-def _plain(d: dict) -> dict:
-    d = {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
-    d.pop("kind")
-    return d
 
 
 def motion_from_record(record: dict) -> Motion:
