@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from ..data.cameras import Camera, focus_point
+from ..export.render import check_time
 from ..run import RunError, load_run
 from .camera import camera_from_view, pose_from_viewmat, vertical_fov
 from .scene import MOTIONS, DatasetCameras, dataset_cameras, find_segments, geometry_at, phase, render_view
@@ -292,6 +293,7 @@ def serve(
     t_end = 2.0 * t_max if t_end is None else float(t_end)
     if not (math.isfinite(t_end) and t_end > 0):
         raise RunError(f"--t-end {t_end}: the time slider's end must be a positive number")
+    check_time(t_end, t_max, "--t-end")  # the limit every command renders to
     cameras = dataset_cameras(Path(data or loaded.config.data), loaded.config.downscale)
     import viser  # here: the other commands do not need the web server
 
