@@ -82,13 +82,15 @@ def main() -> None:
             notes.append(f"{scene}: foreground / background only, auto-K {given['k']}.")
             continue
         segment_run(run, time_=1.0, k=k, score=False)  # the future strip of the figure
-        started = time.perf_counter()
-        given = segment_run(run, k=k)
-        seconds.append(time.perf_counter() - started)
         auto = segment_run(run, auto_k=True, out=run / "segment-auto")
+        kmeans = segment_run(run, k=k, settings=SegmentConfig(refine_iterations=0), out=run / "segment-kmeans")
         baseline = segment_run(run, k=k, settings=flow)
+        started = time.perf_counter()
+        given = segment_run(run, k=k)  # last: the run's stored labels are TRACE's with K given
+        seconds.append(time.perf_counter() - started)
         rows += rows_of(scene, "TRACE", "given", given)
         rows += rows_of(scene, "TRACE", "auto", auto)
+        rows += rows_of(scene, "TRACE, K-means alone", "given", kmeans)
         rows += rows_of(scene, "DefGS flow", "given", baseline)
         figure(run, args.figures / f"{scene}.png", given["time"], [given["time"], 1.0])
         merged = given["ground_truth"]["merged"]
@@ -118,9 +120,12 @@ def main() -> None:
                 "the future all 15 cameras at t > 0.763; each predicted segment against the ground truth's, the "
                 "background one segment in both, no segment ignored (`--ignore-pixels 0`). Features: the paper's "
                 "(|v_bar|, v_bar, |w|, w/|w|) of the rigid motion fitted to f_trd's particle velocities of each "
-                "Gaussian's 24 nearest neighbours (`--settings.twist-neighbours`). The DefGS-flow baseline "
-                "clusters the same runs' f_defo displacements over the training span (DefGS's field, trained "
-                "here beside f_trd); with one moving part both find it. Panoptic: its seg/ masks are foreground "
+                "Gaussian's 24 nearest neighbours (`--settings.twist-neighbours`), K-means, then three rounds in "
+                "which each Gaussian joins the segment whose rigid motion over the span best explains its own "
+                "(docs/SEGMENTATION.md, step 4; `TRACE, K-means alone`: without them). The runs mark static "
+                "Gaussians with a margin of 5 spacings round what moves (`stage2.static_margin`). The DefGS-flow "
+                "baseline clusters the same runs' f_defo displacements over the training span (DefGS's field, "
+                "trained here beside f_trd), refined the same way; with one moving part both find it. Panoptic: its seg/ masks are foreground "
                 "/ background of the training cameras, so only that is scored (not the paper's per-player "
                 "protocol), and the `cpu-fast` run does not reconstruct the players (issue of real captures): "
                 "its moving segment is a few Gaussians. "

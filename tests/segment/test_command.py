@@ -20,7 +20,9 @@ from tracegs.train.trainer import Trainer
 def trained(tmp_path_factory):
     root = tmp_path_factory.mktemp("seg")
     scene = synthesize("fan", root / "scene", resolution=24, views=4, frames=8, progress=False, spp=1)
-    cfg = make_config("tiny", data=scene, run=root / "run", device="cpu", init_points=300)
+    cfg = make_config(
+        "tiny", data=scene, run=root / "run", device="cpu", init_points=300, **{"stage2.skip_static": False}
+    )
     Trainer(cfg, progress=False).train()
     return scene, root / "run"
 

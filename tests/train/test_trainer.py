@@ -406,6 +406,26 @@ def test_a_scene_marked_static_everywhere_trains_without_the_fields(tiny_scene, 
     assert torch.equal(state["means"], g["means"]) and torch.equal(state["quats"], g["quats"])
 
 
+def test_the_static_margin_keeps_the_still_gaussians_next_to_moving_ones_moving(tiny_scene, tmp_path):
+    """A Gaussian that barely moves within the margin of one that moves (a part by its hinge) is not
+    frozen; far from every moving one it is."""
+    from tracegs.models.trace import near_points
+
+    grid = torch.stack(torch.meshgrid(*[torch.arange(10.0)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    seeds = grid[:, 0] >= 5  # the half that moves; the spacing is 1
+    near = near_points(grid, seeds, 2.0)
+    assert torch.equal(near, grid[:, 0] >= 3)
+    assert torch.equal(near_points(grid, seeds, 0.5), seeds)
+    model = _perturbed_model(tiny_scene, tmp_path / "a")
+    most = model.max_displacement(0.5, 16)
+    threshold = float(most.median())
+    model.mark_static(threshold, 0.5, margin=3.0)
+    still = most < threshold
+    assert (model.static_mask <= still).all() and model.static_mask.sum() < still.sum()
+    kept = still & ~model.static_mask
+    assert torch.equal(kept, still & near_points(model.gaussians["means"].detach(), ~still, 3.0))
+
+
 def test_skip_static_marks_by_displacement_and_is_kept_in_the_checkpoint(tiny_scene, tmp_path):
     model = _perturbed_model(tiny_scene, tmp_path / "a")
     most = model.max_displacement(0.5, 16)

@@ -124,6 +124,9 @@ class Stage2Config:
     static_displacement: float = 0.003
     """Largest f_defo displacement over the training span, as a fraction of the scene extent, of a
     Gaussian that ``skip_static`` marks static."""
+    static_margin: float = 5.0
+    """``skip_static`` leaves moving the Gaussians within this many median neighbour spacings of one
+    that moves: a part's slow patch by its hinge turns with it instead of being frozen (0: none)."""
     views_per_step: int = 1
     """Cameras rendered per step at the step's time (a batch of views): the fields are evaluated once
     for that time and the loss is the mean over the views, so their cost is shared. Where fewer cameras
@@ -227,10 +230,8 @@ class TrainConfig:
     threads: int = 0
     """CPU threads of the training; 0: one per core that other processes leave free, counted at the
     start and every 30 s (``train/threads.py``; ``OMP_NUM_THREADS``, when set, is kept)."""
-    seed: int = 0
-    """Random seed."""
-    downscale: int = 1
-    """Integer factor by which images are downscaled when loaded."""
+    seed: int = 0  # random seed
+    downscale: int = 1  # integer factor by which images are downscaled when loaded
     t_train_end: float | None = None
     """Only training frames with time <= this are used (None: the dataset's value, else all)."""
     static_iterations: int = 3000
@@ -247,13 +248,16 @@ class TrainConfig:
     """Where the random-init cube lies when the dataset gives no aabb or points: ``cameras`` centres
     it on the point the cameras look at and scales it with their distance (any capture's scale);
     ``origin``: +/- ``init_extent`` around the origin. Forward-facing captures fall back to ``origin``."""
+    init_hull: bool = False
+    """Add Gaussians on the visual hull of the first time's foreground masks, carved in that cube
+    (``data/masks.py``, ``data/hull.py``; none without masks). ``hull_resolution``: voxels a side."""
+    hull_resolution: int = 96
     field_frame: Literal["auto", "cameras", "world"] = "auto"
     """The frame the fields see positions in (``train/scene_frame.py``): ``world`` coordinates (the
     paper's), or the ``cameras``' frame (centred where they look, scaled by their distance against the
     Blender layout's 4.03) for a capture in any units; ``auto``: the world's when the scene already lies
     within a few units of the origin, else the cameras'."""
-    sh_degree: int = 3
-    """Maximum spherical-harmonics degree."""
+    sh_degree: int = 3  # maximum spherical-harmonics degree
     sh_degree_interval: int = 1000
     """Raise the active SH degree by one every this many steps."""
     bf16: bool = False
@@ -267,8 +271,7 @@ class TrainConfig:
     """Rasteriser backend: auto, native, reference or gsplat."""
     checkpoint_every: int = 2000
     """Write a checkpoint every this many steps (and at the end); a killed run resumes from it."""
-    log_every: int = 100
-    """Log losses and timings every this many steps."""
+    log_every: int = 100  # log losses and timings every this many steps
     optim: OptimConfig = field(default_factory=OptimConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     deformation: DeformationConfig = field(default_factory=DeformationConfig)

@@ -44,6 +44,7 @@ RULES: dict[str, tuple] = {
     "static_iterations": (_non_negative_int, "a non-negative integer"),
     "dynamic_iterations": (_non_negative_int, "a non-negative integer"),
     "init_points": (_positive_int, "a positive integer"),
+    "hull_resolution": (_positive_int, "a positive integer"),
     "init_extent": (_positive, "a positive number"),
     "t_train_end": (_train_end, "a time in (0, 1] (the Blender / D-NeRF times)"),
     "sh_degree": (_non_negative_int, "a non-negative integer"),

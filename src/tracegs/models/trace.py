@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -143,14 +144,22 @@ class TraceModel(nn.Module):
 
     # ----- Gaussians that stand still (``stage2.skip_static``) ---------------------------------------
     @torch.no_grad()
-    def mark_static(self, threshold: float, t_max: float, samples: int = 16) -> float:
+    def mark_static(self, threshold: float, t_max: float, samples: int = 16, margin: float = 0.0) -> float:
         """Mark the Gaussians whose f_defo displacement stays below ``threshold`` (scene units) at
-        ``samples + 1`` times in [0, t_max] as static; returns their fraction. Without f_defo nothing
-        is marked (what moves is not known)."""
+        ``samples + 1`` times in [0, t_max] as static, except those within ``margin`` times the median
+        nearest-neighbour spacing of a Gaussian that moves; returns their fraction. Without f_defo
+        nothing is marked (what moves is not known).
+
+        The margin keeps a moving part whole: next to a hinge a part barely moves, and where f_defo has
+        not yet learned all of a part when the marking is made (a seat that starts from rest), its
+        slow patch would be frozen for good while the rest turns."""
         self.set_static_mask(None)
         if self.deformation is None:
             return 0.0
-        self.set_static_mask(self.max_displacement(t_max, samples) < threshold)
+        still = self.max_displacement(t_max, samples) < threshold
+        if margin > 0 and bool(still.any()) and not bool(still.all()):
+            still &= ~near_points(self.gaussians["means"].detach(), ~still, margin)
+        self.set_static_mask(still)
         return float(self.static_mask.float().mean())
 
     def set_static_mask(self, mask: torch.Tensor | None) -> None:
@@ -265,3 +274,15 @@ def _default_field_frame(module, state_dict, prefix, *_) -> None:
 
 def _sync_frame_after_load(module, _incompatible_keys) -> None:
     module._sync_frame()
+
+
+def near_points(means: torch.Tensor, seeds: torch.Tensor, margin: float) -> torch.Tensor:
+    """[N] bool: the points ``means`` [N, 3] within ``margin`` times their median nearest-neighbour
+    spacing of a point of ``seeds`` [N] bool (scipy's cKDTree)."""
+    from scipy.spatial import cKDTree
+
+    x = means.float().cpu().numpy()
+    spacing = float(np.median(cKDTree(x).query(x, 2)[0][:, 1]))
+    seed_rows = seeds.cpu().numpy()
+    distance = cKDTree(x[seed_rows]).query(x)[0]
+    return torch.as_tensor(distance <= margin * spacing, device=means.device)

@@ -86,15 +86,22 @@ def fit_parabola(times: torch.Tensor, points: torch.Tensor, t0: float) -> tuple[
     return coef[0], coef[1], coef[2]
 
 
-def fit_rigid_transform(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def fit_rigid_transform(
+    a: torch.Tensor, b: torch.Tensor, weights: torch.Tensor | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """(R [3, 3], T [3]) of the rotation and translation that best map the points ``a`` [N, 3] onto
-    ``b`` [N, 3], ``b ~ R a + T`` (least squares, Kabsch via scipy's ``Rotation.align_vectors``;
-    float64, a proper rotation)."""
+    ``b`` [N, 3], ``b ~ R a + T`` (least squares, weighted by ``weights`` [N] when given; Kabsch via
+    scipy's ``Rotation.align_vectors``; float64, a proper rotation)."""
     from scipy.spatial.transform import Rotation
 
     a, b = a.detach().double().cpu(), b.detach().double().cpu()
-    ca, cb = a.mean(0), b.mean(0)
-    fitted, _ = Rotation.align_vectors((b - cb).numpy(), (a - ca).numpy())
+    if weights is None:
+        ca, cb, w = a.mean(0), b.mean(0), None
+    else:
+        w = weights.detach().double().cpu().clamp_min(1e-12)
+        ca, cb = (a * w[:, None]).sum(0) / w.sum(), (b * w[:, None]).sum(0) / w.sum()
+        w = w.numpy()
+    fitted, _ = Rotation.align_vectors((b - cb).numpy(), (a - ca).numpy(), weights=w)
     rotation = torch.as_tensor(fitted.as_matrix(), dtype=torch.float64)
     return rotation, cb - rotation @ ca
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..physics.free_body import fit_rigid_transform
 from .config import SegmentConfig
 from .features import MotionFeatures, twist_design
 
@@ -188,7 +189,90 @@ def _partition(features: MotionFeatures, settings: SegmentConfig, k: int) -> np.
     if has_static:
         labels = np.where(static, -1, labels)
     labels = _tidy(_ordered(labels), features, settings, has_static)
+    if settings.refine_iterations > 0:
+        labels = refine(labels, features, settings, has_static)
+        labels = _tidy(labels, features, settings, has_static)
     return np.where(labels == 0, -1, labels) if has_static else labels
+
+
+def refine(
+    labels: np.ndarray, features: MotionFeatures, settings: SegmentConfig, has_static: bool
+) -> np.ndarray:
+    """Labels 0 .. K-1 (0 the static group when ``has_static``) after ``settings.refine_iterations``
+    rounds of: fit each segment's rigid motion, then give each Gaussian the segment whose motion best
+    explains its own, the costs averaged (opacity-weighted) over its ``settings.smooth_neighbours``
+    nearest neighbours; a Gaussian that moved more than the static threshold stays out of the static
+    group (one that moved less may belong to a moving part: by its hinge, or one that starts from rest).
+    A Gaussian's cost for a segment is how far the segment's rigid transforms move
+    it from its f_defo trajectory (``rigid_costs``) plus how far the segment's twist is from its
+    velocity, each over its mean over the moving Gaussians. K-means on features of one instant splits
+    parts where the features blend (a wing by the body it is hinged to); the trajectories over the
+    whole span and the neighbours' vote draw the line where the motions part."""
+    from scipy.spatial import cKDTree
+
+    traj, u, w = features.trajectories, features.velocities, features.opacity
+    moving = ~features.static
+    disp = np.linalg.norm(traj - traj[:1], axis=2).mean(0)
+    scale_x = float((w * disp)[moving].sum() / max(w[moving].sum(), 1e-12))
+    scale_u = float((w * np.linalg.norm(u, axis=1))[moving].sum() / max(w[moving].sum(), 1e-12))
+    k = int(labels.max()) + 1
+    if k < 2 or scale_x <= 0 or scale_u <= 0:
+        return labels
+    nb = min(settings.smooth_neighbours + 1, len(labels))
+    _, nn = cKDTree(features.positions).query(features.positions, nb)
+    nn = nn.reshape(len(labels), nb)
+    wn = w[nn] + 1e-9
+    for _ in range(settings.refine_iterations):
+        cost = rigid_costs(labels, k, traj, u, features.positions, w, static_first=has_static)
+        cost = cost[0] / scale_x + cost[1] / scale_u
+        cost = (cost[nn] * wn[..., None]).sum(1) / wn.sum(1)[:, None]
+        if has_static:  # what moved more than the static threshold is not static
+            cost[moving, 0] = np.inf
+        new = cost.argmin(1)
+        if np.array_equal(new, labels) or len(np.unique(new)) < len(np.unique(labels)):
+            break  # settled, or a segment would vanish: K stays what was asked
+        labels = new
+    return labels
+
+
+def rigid_costs(
+    labels: np.ndarray,
+    k: int,
+    traj: np.ndarray,
+    u: np.ndarray,
+    x: np.ndarray,
+    w: np.ndarray,
+    static_first: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """([N, K], [N, K]) for every Gaussian and segment: the mean distance over the sampled times from
+    its trajectory ``traj`` [S, N, 3] to where the segment's rigid transforms (weighted Kabsch fits of the
+    segment's trajectories from the first time to each) carry its first position, and the distance
+    from its velocity ``u`` [N, 3] at ``x`` [N, 3] to the segment's twist there. With ``static_first``
+    segment 0 is the static group: the identity and no velocity. A segment of fewer than 3 Gaussians
+    costs infinity."""
+    n, s = len(labels), len(traj)
+    cost_x, cost_u = np.full((n, k), np.inf), np.full((n, k), np.inf)
+    for j in range(k):
+        rows = labels == j
+        if static_first and j == 0:
+            cost_x[:, j] = np.linalg.norm(traj - traj[:1], axis=2).mean(0)
+            cost_u[:, j] = np.linalg.norm(u, axis=1)
+            continue
+        if rows.sum() < 3:
+            continue
+        total = np.zeros(n)
+        for t in range(1, s):
+            r, shift = fit_rigid_transform(
+                *(torch.as_tensor(v) for v in (traj[0][rows], traj[t][rows], w[rows]))
+            )
+            total += np.linalg.norm(traj[0] @ r.numpy().T + shift.numpy() - traj[t], axis=1)
+        cost_x[:, j] = total / max(s - 1, 1)
+        c = (x[rows] * w[rows, None]).sum(0) / max(w[rows].sum(), 1e-12)
+        a = twist_design(torch.as_tensor(x[rows] - c)).numpy()
+        sw = np.sqrt(w[rows])[:, None, None]
+        sol, *_ = np.linalg.lstsq((a * sw).reshape(-1, 6), (u[rows] * sw[..., 0]).reshape(-1), rcond=None)
+        cost_u[:, j] = np.linalg.norm(twist_design(torch.as_tensor(x - c)).numpy() @ sol - u, axis=1)
+    return cost_x, cost_u
 
 
 def _result(labels: np.ndarray, table: list[dict]) -> Segmentation:

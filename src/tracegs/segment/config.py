@@ -43,6 +43,10 @@ class SegmentConfig:
     piece_share: float = 0.25
     """A piece of a segment (connected by nearest neighbours) smaller than this share of it takes the
     label of what surrounds it: a part is one piece (0: off)."""
+    refine_iterations: int = 3
+    """Rounds in which each Gaussian joins the segment whose rigid motion (over the training span, and
+    its twist at the feature time) best explains its own, averaged over its ``smooth_neighbours``
+    nearest neighbours (0: off; the K-means labels as they are)."""
     k_max: int = 8
     """Largest K that ``--auto-k`` tries (segments, the static group counted)."""
     rigid_tolerance: float = 0.02

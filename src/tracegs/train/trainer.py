@@ -259,7 +259,9 @@ class Trainer:
             skip = cfg.stage2.skip_static
             if skip and self.model.static_mask is None and step == self._static_marking_step():
                 threshold = cfg.stage2.static_displacement * self.extent
-                self.static_fraction = self.model.mark_static(threshold, self.t_max)
+                self.static_fraction = self.model.mark_static(
+                    threshold, self.t_max, margin=cfg.stage2.static_margin
+                )
             views = self._views_at_time(self._dynamic_view(dyn_step))
             view = views[0]
             t_prime = self._t_prime(view.time)
