@@ -83,7 +83,9 @@ def main() -> None:
             continue
         segment_run(run, time_=1.0, k=k, score=False)  # the future strip of the figure
         auto = segment_run(run, auto_k=True, out=run / "segment-auto")
-        kmeans = segment_run(run, k=k, settings=SegmentConfig(refine_iterations=0), out=run / "segment-kmeans")
+        kmeans = segment_run(
+            run, k=k, settings=SegmentConfig(refine_iterations=0), out=run / "segment-kmeans"
+        )
         baseline = segment_run(run, k=k, settings=flow)
         started = time.perf_counter()
         given = segment_run(run, k=k)  # last: the run's stored labels are TRACE's with K given

@@ -168,7 +168,9 @@ def hinged_wing(n: int = 1500, t_max: float = 0.75, times: int = 8, seed: int = 
     v, w = np.array([0.3, 0.0, 0.0]), np.array([0.0, 1.5, 0.0])
     ts = np.linspace(0, t_max, times)
     rot = [_rotation(w, np.linalg.norm(w) * t) for t in ts]
-    traj = np.stack([np.concatenate([body + v * t, wing @ r.T + v * t]) for t, r in zip(ts, rot)])
+    traj = np.stack(
+        [np.concatenate([body + v * t, wing @ r.T + v * t]) for t, r in zip(ts, rot, strict=True)]
+    )
     x = traj[-1]
     velocity = np.concatenate([np.tile(v, (n, 1)), v + np.cross(w, x[n:] - v * t_max)])
     truth = np.repeat([0, 1], n)

@@ -91,7 +91,8 @@ def test_refinement_stops_by_a_fraction_of_short_runs():
     means2d.sum().backward()
     info = {"means2d": means2d, "radii": torch.ones(6), "width": 10, "height": 10}
     assert (
-        strategy.step_post_backward(params, opts, strategy.initialize_state(), step=2, render_infos=[info]) == {}
+        strategy.step_post_backward(params, opts, strategy.initialize_state(), step=2, render_infos=[info])
+        == {}
     )
     assert torch.equal(params["opacities"], before)  # no reset after the stop either
 
@@ -108,7 +109,9 @@ def test_growth_under_a_budget_takes_the_largest_gradients():
     (means2d[:, 0] * weights).sum().backward()
     info = {"means2d": means2d, "radii": torch.ones(6), "width": 2, "height": 2}
     before = params["means"].detach().clone()
-    report = strategy.step_post_backward(params, opts, strategy.initialize_state(), step=1, render_infos=[info])
+    report = strategy.step_post_backward(
+        params, opts, strategy.initialize_state(), step=1, render_infos=[info]
+    )
     _check_aligned(params, opts)
     # budget 8 - 6 = 2: rows 3 (6.0, large -> split) and 1 (5.0, small -> cloned), not the first rows
     assert report == {"cloned": 1, "split": 1, "pruned": 0}

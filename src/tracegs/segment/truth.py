@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..data.frames import DatasetError, Frame, load_json
+from ..data.masks import read_id_mask
 
 
 @dataclass
@@ -43,24 +44,9 @@ class GroundTruth:
         path = self.mask_path(frame)
         if not path.is_file():
             return None
-        import imageio.v2 as imageio
-
-        try:
-            raw = np.asarray(imageio.imread(path))
-        except Exception as e:  # imageio raises many kinds for a broken file
-            raise DatasetError(f"{path}: cannot read the mask ({e})") from None
-        if raw.ndim == 3:
-            raw = raw[..., 0]
-        if raw.ndim != 2:
-            raise DatasetError(f"{path}: a mask must be one channel of ids, got shape {raw.shape}")
-        ids = (raw > 0).astype(np.int64) if self.layout == "foreground" else raw.astype(np.int64)
-        h, w = frame.height, frame.width
-        if ids.shape != (h, w):
-            fy, fx = ids.shape[0] / h, ids.shape[1] / w
-            if fy != fx or fy != int(fy) or fy < 1:
-                raise DatasetError(f"{path}: mask of {ids.shape[1]}x{ids.shape[0]} for an image of {w}x{h}")
-            f = int(fy)
-            ids = ids[f // 2 :: f, f // 2 :: f]
+        ids = read_id_mask(path, frame.height, frame.width)
+        if self.layout == "foreground":
+            ids = (ids > 0).astype(np.int64)
         if self.segment_of:
             lut = np.arange(max(int(ids.max()), max(self.segment_of)) + 1)
             for part, segment in self.segment_of.items():

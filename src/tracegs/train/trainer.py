@@ -28,7 +28,6 @@ from ..data.dataset import ViewDataset, frame_interval
 from ..data.frames import DatasetError
 from ..data.scene import load_scene
 from ..extrapolate import calibrate
-from ..models.gaussians import create_gaussians, random_gaussians
 from ..models.trace import TraceModel
 from ..run import (
     CHECKPOINT,
@@ -54,6 +53,7 @@ from .checkpoint import (
     training_fingerprint,
 )
 from .guard import NonFinite, check_parameters, check_step, interrupt_at_step_end
+from .init import initial_gaussians
 from .losses import photometric_loss
 from .optim import (
     field_lrs,
@@ -68,17 +68,6 @@ from .report import describe, report_step, stage, summary
 from .scene_frame import default_aabb, field_frame
 from .strategy import DefaultStrategy
 from .threads import ThreadPolicy
-
-
-def initial_gaussians(cfg: TrainConfig, aabb: torch.Tensor, device) -> torch.nn.ParameterDict:
-    """From ``points3d.ply`` in the scene folder if there is one (SfM points), else random in ``aabb``."""
-    ply = Path(cfg.data) / "points3d.ply"
-    if ply.is_file():
-        from ..data.points import read_points
-
-        points, colors = read_points(ply)
-        return create_gaussians(points.to(device), colors.to(device), cfg.sh_degree)
-    return random_gaussians(cfg.init_points, aabb, cfg.sh_degree)
 
 
 class Trainer:
@@ -110,7 +99,9 @@ class Trainer:
         self.aabb = default_aabb(cfg, self.data).to(self.device)
         self.static_views = self._static_views()
         self.static_fraction: float | None = None  # of the Gaussians marked static (stage2.skip_static)
-        gaussians = initial_gaussians(cfg, self.aabb, self.device)
+        gaussians = initial_gaussians(
+            cfg, self.aabb, self.device, log=tqdm.write if progress else (lambda _message: None)
+        )
         self.model = TraceModel(cfg, gaussians, self.aabb, self.dt_frame).to(self.device)
         self.model.set_field_frame(*field_frame(cfg, self.data))
         self.optimizers = gaussian_optimizers(self.model.gaussians, cfg.optim, self.extent)
