@@ -64,6 +64,9 @@ def main() -> None:
         "--json", type=Path, help="write the results record here (docs/results/segmentation.json)"
     )
     ap.add_argument("--figures", type=Path, default=Path("docs/figures/segmentation"))
+    ap.add_argument(
+        "--note", default="", help="a sentence added to the record's notes (e.g. where the runs differ)"
+    )
     args = ap.parse_args()
     rows, seconds, notes = [], [], []
     for run in args.runs:
@@ -87,6 +90,12 @@ def main() -> None:
             run, k=k, settings=SegmentConfig(refine_iterations=0), out=run / "segment-kmeans"
         )
         baseline = segment_run(run, k=k, settings=flow)
+        flow_kmeans = segment_run(
+            run,
+            k=k,
+            settings=SegmentConfig(features="flow", refine_iterations=0),
+            out=run / "segment-flow-kmeans",
+        )
         started = time.perf_counter()
         given = segment_run(run, k=k)  # last: the run's stored labels are TRACE's with K given
         seconds.append(time.perf_counter() - started)
@@ -94,6 +103,7 @@ def main() -> None:
         rows += rows_of(scene, "TRACE", "auto", auto)
         rows += rows_of(scene, "TRACE, K-means alone", "given", kmeans)
         rows += rows_of(scene, "DefGS flow", "given", baseline)
+        rows += rows_of(scene, "DefGS flow, K-means alone", "given", flow_kmeans)
         figure(run, args.figures / f"{scene}.png", given["time"], [given["time"], 1.0])
         merged = given["ground_truth"]["merged"]
         notes.append(
@@ -127,11 +137,12 @@ def main() -> None:
                 "(docs/SEGMENTATION.md, step 4; `TRACE, K-means alone`: without them). The runs mark static "
                 "Gaussians with a margin of 5 spacings round what moves (`stage2.static_margin`). The DefGS-flow "
                 "baseline clusters the same runs' f_defo displacements over the training span (DefGS's field, "
-                "trained here beside f_trd), refined the same way; with one moving part both find it. Panoptic: its seg/ masks are foreground "
+                "trained here beside f_trd), refined the same way (`DefGS flow, K-means alone`: without); with one moving part all find it. Panoptic: its seg/ masks are foreground "
                 "/ background of the training cameras, so only that is scored (not the paper's per-player "
                 "protocol), and the `cpu-fast` run does not reconstruct the players (issue of real captures): "
                 "its moving segment is a few Gaussians. "
                 + " ".join(notes)
+                + (f" {args.note}" if args.note else "")
                 + " Precision and recall of every row: each run's segment.json."
                 + f" `tracegs segment` with its scoring took {np.mean(seconds):.0f} s per run on average."
             ),

@@ -1,0 +1,109 @@
+"""How far the fields of a training step are from their FLOP floor, on this CPU.
+
+A trained run's model (its checkpoint, the demo's sizes: its Gaussians, its static mask) computes one
+stage-2 step's fields, forward and backward (`TraceModel.training_state`: f_defo at t', f_trd there,
+the RK2 integration, the acceleration consistency), without the rasteriser. Their floating-point
+operations are counted by PyTorch's own counter (`torch.utils.flop_counter.FlopCounterMode`, matrix
+products only: what dominates a 4 x 64 MLP). The floor is that count at the best rate this CPU
+reaches in one large matrix product in the fields' dtype (bf16 where the run uses it, else float32),
+with the same threads. Ratio = measured time / floor.
+
+Run it alone on the machine. Usage:
+.venv/bin/python benchmarks/fields_floor.py --run runs/demo/trace [--json docs/results/fields-floor.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import torch
+from torch.utils.flop_counter import FlopCounterMode
+
+from tracegs.results import make_record, write_record
+from tracegs.run import load_run
+
+
+def gemm_rate(dtype: torch.dtype, size: int = 2048, repeats: int = 20) -> float:
+    """FLOP/s of a [size, size] x [size, size] matrix product in ``dtype`` (the CPU's practical peak)."""
+    a, b = torch.randn(size, size).to(dtype), torch.randn(size, size).to(dtype)
+    for _ in range(3):
+        a @ b
+    start = time.perf_counter()
+    for _ in range(repeats):
+        a @ b
+    return 2 * size**3 * repeats / (time.perf_counter() - start)
+
+
+def fields_step(model, t_prime: float, t: float) -> None:
+    """One step's fields, forward and backward (a fixed random functional of every output)."""
+    state, losses = model.training_state(t_prime, t)
+    total = sum(v.sum() for v in losses.values()) if losses else 0.0
+    g = torch.Generator().manual_seed(0)
+    for name in ("means", "quats", "scales"):
+        total = total + (state[name] * torch.randn(state[name].shape, generator=g)).sum()
+    total.backward()
+    model.zero_grad(set_to_none=True)
+
+
+def measure(model, threads: int, repeats: int = 50) -> dict:
+    torch.set_num_threads(threads)
+    t_prime, t = 0.55, 0.6
+    with FlopCounterMode(display=False) as counter:
+        fields_step(model, t_prime, t)
+    flops = counter.get_total_flops()
+    for _ in range(10):
+        fields_step(model, t_prime, t)
+    start = time.perf_counter()
+    for _ in range(repeats):
+        fields_step(model, t_prime, t)
+    ms = 1000 * (time.perf_counter() - start) / repeats
+    dtype = torch.bfloat16 if model.bf16 else torch.float32
+    rate = gemm_rate(dtype)
+    floor_ms = 1000 * flops / rate
+    return {
+        "threads": threads,
+        "dtype": str(dtype).removeprefix("torch."),
+        "moving_gaussians": int(
+            model.gaussians["means"].shape[0]
+            - (0 if model.static_mask is None else int(model.static_mask.sum()))
+        ),
+        "mflop_per_step": round(flops / 1e6, 1),
+        "gemm_gflops": round(rate / 1e9, 1),
+        "floor_ms": round(floor_ms, 3),
+        "measured_ms": round(ms, 2),
+        "ratio": round(ms / floor_ms, 1),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--run", type=Path, required=True, help="a trained run folder (e.g. the demo's)")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args()
+    model = load_run(args.run, "cpu").model
+    model.train()
+    for p in model.parameters():
+        p.requires_grad_(True)
+    rows = [measure(model, threads) for threads in (1, 2)]
+    for row in rows:
+        print(row)
+    if args.json:
+        record = make_record(
+            "fields-floor",
+            rows,
+            f"python benchmarks/fields_floor.py --run {args.run}",
+            title="The fields of one stage-2 step against their FLOP floor",
+            notes=(
+                "One step's fields (f_defo at t', f_trd, RK2, the acceleration consistency) forward and "
+                "backward on the trained run's Gaussians, without the rasteriser; FLOPs of the matrix "
+                "products by torch.utils.flop_counter; floor = those FLOPs at the rate of a 2048^2 matrix "
+                "product in the same dtype and threads. ratio = measured / floor."
+            ),
+        )
+        write_record(args.json, record)
+
+
+if __name__ == "__main__":
+    main()
