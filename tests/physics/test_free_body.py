@@ -11,6 +11,7 @@ from tracegs.physics.free_body import (
     fit_rigid_transform,
     fit_rigid_velocity,
     isolation,
+    main_piece,
     move,
     pivot_path,
     rigid_components,
@@ -127,6 +128,19 @@ def test_centre_of_mass_is_the_solid_s_not_the_points_mean():
     flat = torch.randn(30, 3, dtype=DT) * torch.tensor([1.0, 1.0, 0.0], dtype=DT)
     torch.testing.assert_close(centre_of_mass(flat), flat.mean(0))
     torch.testing.assert_close(centre_of_mass(points[:3]), points[:3].mean(0))
+
+
+def test_a_few_points_apart_from_a_body_are_left_out_of_its_centre():
+    """A ball's surface Gaussians and a few from near the ground a unit below it: the main piece is the
+    ball, and its hull's centroid the ball's centre (the hull of all of them is pulled down)."""
+    centre = torch.tensor([0.1, 0.0, 0.3], dtype=DT)
+    ball = centre + 0.2 * torch.nn.functional.normalize(torch.randn(2000, 3, dtype=DT), dim=1)
+    stray = torch.tensor([[0.0, 0.0, -0.8], [-0.3, 0.1, -0.7], [0.2, -0.1, -0.75]], dtype=DT)
+    points = torch.cat([ball, stray])
+    kept = main_piece(points)
+    assert kept[:2000].all() and not kept[2000:].any()
+    assert (centre_of_mass(points) - centre).norm() > 0.05
+    torch.testing.assert_close(centre_of_mass(points[kept]), centre, rtol=0, atol=5e-3)
 
 
 def test_rigid_components_split_bodies_by_their_velocities():

@@ -22,6 +22,7 @@ from ..physics.free_body import (
     fit_parabola,
     fit_rigid_velocity,
     isolation,
+    main_piece,
     move,
     pivot_path,
     rigid_components,
@@ -119,13 +120,13 @@ def moving_groups(model, state: ExtrapolationState, t0: float, extent: float, wi
 def fit_free_body(
     model, rows: torch.Tensor, t0: float, path: tuple[torch.Tensor, list[torch.Tensor]]
 ) -> FreeBody:
-    """The free body of the Gaussians ``rows`` at ``t0``: its pivot, their centre of mass at ``t0``
-    (``centre_of_mass``); the pivot's parabola fitted to its path under f_defo's rigid motion of them
+    """The free body of the Gaussians ``rows`` at ``t0``: its pivot, the centre of mass at ``t0`` of
+    their main piece (``centre_of_mass``, ``main_piece``); the pivot's parabola fitted to its path under f_defo's rigid motion of them
     over the window ``path`` (``window_means``; ``pivot_path``); its spin the rigid motion that best
     fits f_trd's particle velocities over them at ``t0``."""
     times, past = path
     x = past[0][rows]
-    c0 = centre_of_mass(x)
+    c0 = centre_of_mass(x[main_piece(x).to(x.device)])
     _, v, a = fit_parabola(times, pivot_path(c0, x, [means[rows] for means in past]), t0)
     params = model.query_dynamics(x, t0)
     _, w = fit_rigid_velocity(x, particle_velocity(x, params.velocity, params.angular_velocity), c0)

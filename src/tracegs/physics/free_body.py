@@ -52,6 +52,24 @@ class FreeBody:
         return cls(*row.double().reshape(FREE_BODY_NUMBERS // 3, 3))
 
 
+def main_piece(points: torch.Tensor, spacings: float = 4.0) -> torch.Tensor:
+    """[N] bool: the largest connected piece of ``points`` [N, 3], two points joined when they lie
+    within ``spacings`` times the median nearest-neighbour spacing (scipy's cKDTree). A few Gaussians
+    that f_defo moves with a body from elsewhere (`fallingball`: some from near the ground, a unit
+    below the ball) are pieces of their own; in a body's hull they would pull its centroid to them."""
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    x = points.detach().double().cpu().numpy()
+    if len(x) < 3:
+        return torch.ones(len(x), dtype=torch.bool)
+    tree = cKDTree(x)
+    spacing = float(np.median(tree.query(x, 2)[0][:, 1]))
+    graph = tree.sparse_distance_matrix(tree, spacings * max(spacing, 1e-12), output_type="coo_matrix")
+    _, piece = connected_components(graph, directed=False)
+    return torch.as_tensor(piece == np.bincount(piece).argmax())
+
+
 def centre_of_mass(points: torch.Tensor) -> torch.Tensor:
     """[3] float64: the centre of mass of the solid that the points [N, 3] bound, taken as their convex
     hull filled uniformly; the points' mean where they span no volume (fewer than 4, or flat).
