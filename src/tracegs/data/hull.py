@@ -30,6 +30,15 @@ def project(points: torch.Tensor, camera: Camera) -> tuple[torch.Tensor, torch.T
     return uv[:, :2] / z.clamp_min(1e-9)[:, None], z
 
 
+def pixels(points: torch.Tensor, camera: Camera) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(row [N], column [N], visible [N] bool) of the pixel each of ``points`` [N, 3] falls in, seen by
+    ``camera``; visible: in front of it and inside its image."""
+    uv, z = project(points, camera)
+    col, row = uv[:, 0].floor().long(), uv[:, 1].floor().long()
+    visible = (z > 0) & (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
+    return row, col, visible
+
+
 def visual_hull(
     cameras: list[Camera],
     masks: list[np.ndarray],
@@ -58,9 +67,7 @@ def visual_hull(
         mask = torch.as_tensor(np.asarray(mask, dtype=bool))
         if mask.shape != (camera.height, camera.width):
             raise ValueError(f"a mask of {tuple(mask.shape)} for a camera of {camera.height}x{camera.width}")
-        uv, z = project(grid, camera)
-        col, row = uv[:, 0].floor().long(), uv[:, 1].floor().long()
-        visible = (z > 0) & (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
+        row, col, visible = pixels(grid, camera)
         seen += visible.int()
         hit = torch.zeros_like(visible)
         hit[visible] = mask[row[visible], col[visible]]
@@ -75,9 +82,7 @@ def hull_colours(points: torch.Tensor, cameras: list[Camera], images: list[torch
     total = torch.zeros(len(points), 3)
     count = torch.zeros(len(points), 1)
     for camera, image in zip(cameras, images, strict=True):
-        uv, z = project(points, camera)
-        col, row = uv[:, 0].floor().long(), uv[:, 1].floor().long()
-        visible = (z > 0) & (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
+        row, col, visible = pixels(points, camera)
         total[visible] += image[row[visible], col[visible]].float()
         count[visible] += 1
     return torch.where(count > 0, total / count.clamp_min(1), torch.full_like(total, 0.5))

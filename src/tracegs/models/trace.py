@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import contextlib
 
-import numpy as np
 import torch
 from torch import nn
 
+from ..physics.free_body import median_spacing
 from ..physics.integrate import acceleration_consistency, integrate, params_in_world
 from ..render import rasterize
 from .deformation import apply_deformation, make_deformation_field
@@ -278,11 +278,9 @@ def _sync_frame_after_load(module, _incompatible_keys) -> None:
 
 def near_points(means: torch.Tensor, seeds: torch.Tensor, margin: float) -> torch.Tensor:
     """[N] bool: the points ``means`` [N, 3] within ``margin`` times their median nearest-neighbour
-    spacing of a point of ``seeds`` [N] bool (scipy's cKDTree)."""
+    spacing (``physics.free_body.median_spacing``) of a point of ``seeds`` [N] bool."""
     from scipy.spatial import cKDTree
 
     x = means.float().cpu().numpy()
-    spacing = float(np.median(cKDTree(x).query(x, 2)[0][:, 1]))
-    seed_rows = seeds.cpu().numpy()
-    distance = cKDTree(x[seed_rows]).query(x)[0]
-    return torch.as_tensor(distance <= margin * spacing, device=means.device)
+    distance = cKDTree(x[seeds.cpu().numpy()]).query(x)[0]
+    return torch.as_tensor(distance <= margin * median_spacing(x), device=means.device)

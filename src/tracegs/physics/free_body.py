@@ -52,6 +52,14 @@ class FreeBody:
         return cls(*row.double().reshape(FREE_BODY_NUMBERS // 3, 3))
 
 
+def median_spacing(points: np.ndarray) -> float:
+    """The median distance from each of ``points`` [N, 3] (N >= 2) to its nearest other point (scipy's
+    cKDTree): the length that "so many Gaussian spacings" counts in."""
+    from scipy.spatial import cKDTree
+
+    return float(np.median(cKDTree(points).query(points, 2)[0][:, 1]))
+
+
 def main_piece(points: torch.Tensor, spacings: float = 4.0) -> torch.Tensor:
     """[N] bool: the largest connected piece of ``points`` [N, 3], two points joined when they lie
     within ``spacings`` times the median nearest-neighbour spacing (scipy's cKDTree). A few Gaussians
@@ -64,8 +72,8 @@ def main_piece(points: torch.Tensor, spacings: float = 4.0) -> torch.Tensor:
     if len(x) < 3:
         return torch.ones(len(x), dtype=torch.bool)
     tree = cKDTree(x)
-    spacing = float(np.median(tree.query(x, 2)[0][:, 1]))
-    graph = tree.sparse_distance_matrix(tree, spacings * max(spacing, 1e-12), output_type="coo_matrix")
+    reach = spacings * max(median_spacing(x), 1e-12)
+    graph = tree.sparse_distance_matrix(tree, reach, output_type="coo_matrix")
     _, piece = connected_components(graph, directed=False)
     return torch.as_tensor(piece == np.bincount(piece).argmax())
 
@@ -349,6 +357,5 @@ def isolation(x: torch.Tensor, group: torch.Tensor, still: torch.Tensor, quantil
     group, still = group.cpu().numpy(), still.cpu().numpy()
     if not still.any() or not group.any():
         return float("inf")
-    spacing = float(np.median(cKDTree(points).query(points, 2)[0][:, 1]))
     distance = cKDTree(points[still]).query(points[group], 1)[0]
-    return float(np.quantile(distance, quantile)) / max(spacing, 1e-12)
+    return float(np.quantile(distance, quantile)) / max(median_spacing(points), 1e-12)

@@ -91,13 +91,19 @@ def rigid_residual(
     for label in np.unique(labels):
         rows = labels == label
         x, u, wr = positions[rows], velocities[rows], w[rows]
-        c = (x * wr[:, None]).sum(0) / max(wr.sum(), 1e-12)
-        d = x - c
-        a = twist_design(torch.as_tensor(d)).numpy()  # u = V + W x d
-        sw = np.sqrt(wr)[:, None, None]
-        sol, *_ = np.linalg.lstsq((a * sw).reshape(-1, 6), (u * sw[..., 0]).reshape(-1), rcond=None)
-        total += float((wr * np.linalg.norm((a @ sol) - u, axis=1)).sum())
+        total += float((wr * np.linalg.norm(fit_twist(x, u, wr)(x) - u, axis=1)).sum())
     return total / speed
+
+
+def fit_twist(x: np.ndarray, u: np.ndarray, w: np.ndarray):
+    """The rigid motion (V, W) about the ``w``-weighted centre c of ``x`` [M, 3] that best explains the
+    velocities ``u`` [M, 3] (``u ~ V + W x (x - c)``, weighted least squares), as a function giving its
+    velocity at any points [N, 3]."""
+    c = (x * w[:, None]).sum(0) / max(w.sum(), 1e-12)
+    a = twist_design(torch.as_tensor(x - c)).numpy()
+    sw = np.sqrt(w)[:, None, None]
+    sol, *_ = np.linalg.lstsq((a * sw).reshape(-1, 6), (u * sw[..., 0]).reshape(-1), rcond=None)
+    return lambda points: twist_design(torch.as_tensor(points - c)).numpy() @ sol
 
 
 def connected(
@@ -255,7 +261,7 @@ def rigid_costs(
     for j in range(k):
         rows = labels == j
         if static_first and j == 0:
-            cost_x[:, j] = np.linalg.norm(traj - traj[:1], axis=2).mean(0)
+            cost_x[:, j] = np.linalg.norm(traj - traj[:1], axis=2).mean(0)  # the identity's
             cost_u[:, j] = np.linalg.norm(u, axis=1)
             continue
         if rows.sum() < 3:
@@ -267,11 +273,7 @@ def rigid_costs(
             )
             total += np.linalg.norm(traj[0] @ r.numpy().T + shift.numpy() - traj[t], axis=1)
         cost_x[:, j] = total / max(s - 1, 1)
-        c = (x[rows] * w[rows, None]).sum(0) / max(w[rows].sum(), 1e-12)
-        a = twist_design(torch.as_tensor(x[rows] - c)).numpy()
-        sw = np.sqrt(w[rows])[:, None, None]
-        sol, *_ = np.linalg.lstsq((a * sw).reshape(-1, 6), (u[rows] * sw[..., 0]).reshape(-1), rcond=None)
-        cost_u[:, j] = np.linalg.norm(twist_design(torch.as_tensor(x - c)).numpy() @ sol - u, axis=1)
+        cost_u[:, j] = np.linalg.norm(fit_twist(x[rows], u[rows], w[rows])(x) - u, axis=1)
     return cost_x, cost_u
 
 

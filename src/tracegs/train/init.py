@@ -13,8 +13,11 @@ from ..data.scene import load_scene
 from ..models.gaussians import create_gaussians, random_gaussians
 
 
-def initial_gaussians(cfg: TrainConfig, aabb: torch.Tensor, device, log=print) -> torch.nn.ParameterDict:
-    """The initial Gaussians of a run (module docstring); ``log`` says what the hull gave."""
+def initial_gaussians(
+    cfg: TrainConfig, aabb: torch.Tensor, device, log=print, frames: list | None = None
+) -> torch.nn.ParameterDict:
+    """The initial Gaussians of a run (module docstring); ``log`` says what the hull gave; ``frames``:
+    the training split's frames when they are already loaded."""
     ply = Path(cfg.data) / "points3d.ply"
     if ply.is_file():
         from ..data.points import read_points
@@ -26,7 +29,7 @@ def initial_gaussians(cfg: TrainConfig, aabb: torch.Tensor, device, log=print) -
         return background
     from ..data.hull import hull_points
 
-    frames = load_scene(cfg.data, "train", cfg.downscale).frames
+    frames = frames if frames is not None else load_scene(cfg.data, "train", cfg.downscale).frames
     hull = hull_points(cfg.data, frames, aabb.cpu(), cfg.hull_resolution)
     if hull is None:
         log(f"{cfg.data}: no foreground masks at the first time (seg/ or masks/): random initial Gaussians")

@@ -99,9 +99,8 @@ class Trainer:
         self.aabb = default_aabb(cfg, self.data).to(self.device)
         self.static_views = self._static_views()
         self.static_fraction: float | None = None  # of the Gaussians marked static (stage2.skip_static)
-        gaussians = initial_gaussians(
-            cfg, self.aabb, self.device, log=tqdm.write if progress else (lambda _message: None)
-        )
+        log = tqdm.write if progress else (lambda _message: None)
+        gaussians = initial_gaussians(cfg, self.aabb, self.device, log, self.data.scene.frames)
         self.model = TraceModel(cfg, gaussians, self.aabb, self.dt_frame).to(self.device)
         self.model.set_field_frame(*field_frame(cfg, self.data))
         self.optimizers = gaussian_optimizers(self.model.gaussians, cfg.optim, self.extent)
