@@ -17,6 +17,7 @@ import pytest
 import torch
 from tests.conftest import write_tiny_scene
 
+import tracegs.train.losses as losses_module
 import tracegs.train.trainer as trainer_module
 from tracegs.config import make_config
 from tracegs.run import (
@@ -284,7 +285,7 @@ def test_a_keyboard_interrupt_saves_a_whole_step(scene, reference, tmp_path, one
 
 def inject_nan(monkeypatch, steps: set[int]) -> list[int]:
     """Make the photometric loss NaN the first time each of ``steps`` is trained; returns the steps hit."""
-    loss, hit, trainers = trainer_module.photometric_loss, [], []
+    loss, hit, trainers = losses_module.photometric_loss, [], []
     step = Trainer.train_step
 
     def tracking(self):
@@ -300,7 +301,7 @@ def inject_nan(monkeypatch, steps: set[int]) -> list[int]:
         return losses
 
     monkeypatch.setattr(Trainer, "train_step", tracking)
-    monkeypatch.setattr(trainer_module, "photometric_loss", poisoned)
+    monkeypatch.setattr(losses_module, "photometric_loss", poisoned)
     return hit
 
 

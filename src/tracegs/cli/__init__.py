@@ -108,7 +108,9 @@ def _train_request(argv: list[str]) -> tuple[TrainConfig, Train]:
         default = PRESETS[flags.preset]()
         description = (
             _description(Train)
-            + "\n\n--json FILE also writes the summary to FILE; --resume RUN continues RUN."
+            + "\n\n--json FILE also writes the summary to FILE; --resume RUN continues RUN; --continual trains "
+            "in rounds (--window W --horizon H [--step S --frames --fraction F]: observe [0, W], predict the next "
+            "H, add S, go on; RUN/continual.json)."
         )
         cfg = tyro.cli(
             type(default), default=default, args=rest, prog="tracegs train", description=description
@@ -131,7 +133,14 @@ def run_train(argv: list[str]) -> dict:
     from ..train.trainer import Trainer
 
     cfg, flags = _train_request(argv)
-    summary = Trainer(cfg).train()
+    if flags.continual:
+        from ..continual import Continual, train_continual
+
+        summary = train_continual(
+            cfg, Continual(flags.window, flags.horizon, flags.step, flags.frames, flags.fraction)
+        )
+    else:
+        summary = Trainer(cfg).train()
     _dump(summary, flags.json)
     return summary
 
@@ -186,8 +195,15 @@ def _eval(a: Eval) -> None:
     from ..eval.report import format_summary
 
     result = evaluate_run(a.run, a.data, a.half_res, a.lpips, a.save_images, a.device, out=a.out)
+    console = format_summary(result)
+    if a.until is not None:  # the new cameras past the data (``eval/horizon.py``)
+        from ..eval.horizon import long_horizon
+
+        out = None if a.out is None else a.out / "horizon"
+        result["horizon"] = long_horizon(a.run, a.until, a.data, device=a.device, out=out)
+        console += f"\nlong horizon to t = {a.until:g}: {result['horizon']['note']}"
     path = a.json or a.run / "eval.json"
-    _dump(result, path, console=format_summary(result) + f"\nall numbers: {path}")
+    _dump(result, path, console=console + f"\nall numbers: {path}")
 
 
 def _export(a: Export) -> None:
@@ -232,37 +248,9 @@ def _metrics(a: Metrics) -> None:
 
 def _bench(a: Bench) -> None:
     """`tracegs bench WHAT`: one benchmark; its record goes to ``--json`` when given."""
-    from ..bench import ABLATIONS, METHODS, OPTIONS, run_field_bench, run_raster_bench, run_variant_table
+    from ..bench.command import bench_command
 
-    if a.what == "raster":
-        records = run_raster_bench(json_path=a.json, device=a.device)
-    elif a.what == "fields":
-        records = run_field_bench(json_path=a.json)
-    else:
-        table = METHODS if a.what == "methods" else ABLATIONS
-        known = table if a.what == "methods" else ABLATIONS | OPTIONS
-        unknown = set(a.variants) - set(known)
-        if unknown:
-            raise ValueError(f"--variants: unknown {sorted(unknown)}; choose from {list(known)}")
-        variants = {k: v for k, v in known.items() if k in a.variants} if a.variants else table
-        overrides = {} if a.device == "auto" else {"device": a.device}
-        if a.dynamic_iterations is not None:
-            overrides["dynamic_iterations"] = a.dynamic_iterations
-        records = run_variant_table(
-            a.what,
-            variants,
-            a.out,
-            a.scenes,
-            a.preset,
-            a.resolution,
-            overrides,
-            train=not a.report_only,
-            validation=a.validation,
-            json_path=a.json,
-            cluster=a.cluster,
-            cpus_per_task=a.cpus_per_task,
-        )
-    print(json.dumps(records, indent=2)[:4000])
+    print(json.dumps(bench_command(a), indent=2)[:4000])
 
 
 COMMANDS: dict[str, tuple[type, Callable]] = {
@@ -313,7 +301,7 @@ def usage() -> str:
             *lines,
             "",
             "Shared flags: --data (a scene folder), --run (a run folder), --out (where outputs go), --json",
-            "(write results as JSON), --preset (paper, cpu-fast, tiny), --device (auto, cpu, cuda).",
+            "(write results as JSON), --preset (paper, cpu-fast, capture, tiny), --device (auto, cpu, cuda).",
             "`tracegs COMMAND --help` lists a command's flags; --debug shows the traceback of an error.",
         ]
     )

@@ -12,7 +12,7 @@ import tyro
 
 from ..segment.config import SegmentConfig
 
-PresetName = Literal["paper", "cpu-fast", "tiny"]
+PresetName = Literal["paper", "cpu-fast", "capture", "tiny"]
 """The names of ``config.PRESETS``."""
 
 
@@ -68,6 +68,19 @@ class Train:
     """Also write the training summary here (it always goes to RUN/summary.json)."""
     resume: Path | None = None
     """Continue the run folder RUN with its own RUN/config.json (only --device may change)."""
+    continual: bool = False
+    """Continual learning (``continual.py``): train on [0, --window], predict and score the next
+    --horizon, add --step more and go on from the current model; the table goes to RUN/continual.json."""
+    window: float = 0.15
+    """--continual: the first round's observed span (a time in [0, 1], or frames with --frames)."""
+    horizon: float = 0.15
+    """--continual: the span predicted and scored after each round."""
+    step: float | None = None
+    """--continual: the span each round adds (default: --horizon)."""
+    frames: bool = False
+    """--continual: --window, --horizon and --step count frames."""
+    fraction: float = 0.25
+    """--continual: fraction of the stage-2 steps each round after the first trains (warm start)."""
 
 
 @dataclass
@@ -137,6 +150,9 @@ class Eval:
     """Compute LPIPS (VGG and AlexNet)."""
     save_images: bool = True
     """Write the rendered frames into --out."""
+    until: float | None = None
+    """Also render the new cameras' future up to this time, past the data (e.g. 1.5: twice a 0.75
+    training span), scored per time while there are images; the output says where nothing was checked."""
     device: str = "auto"
     """auto, cpu or cuda."""
 

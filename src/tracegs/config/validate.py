@@ -45,7 +45,9 @@ RULES: dict[str, tuple] = {
     "dynamic_iterations": (_non_negative_int, "a non-negative integer"),
     "init_points": (_positive_int, "a positive integer"),
     "hull_resolution": (_positive_int, "a positive integer"),
+    "init_surroundings": (_non_negative_int, "a non-negative integer (0 = none)"),
     "init_extent": (_positive, "a positive number"),
+    "near_plane": (_positive, "a positive number"),
     "t_train_end": (_train_end, "a time in (0, 1] (the Blender / D-NeRF times)"),
     "sh_degree": (_non_negative_int, "a non-negative integer"),
     "sh_degree_interval": (_positive_int, "a positive integer"),
@@ -133,5 +135,11 @@ def validate(cfg: TrainConfig) -> TrainConfig:
     if cfg.method == "static" and cfg.static_iterations < 1:
         raise ValueError(
             f"--static-iterations must be at least 1 with --method static, got {cfg.static_iterations}"
+        )
+    stop = min(cfg.densify.refine_stop, int(cfg.densify.refine_stop_fraction * cfg.total_iterations))
+    if cfg.stage2.static_outside_masks and stop > cfg.static_iterations and cfg.method != "static":
+        raise ValueError(
+            "--stage2.static-outside-masks needs densification to stop by stage 2: --densify.refine-stop "
+            f"{cfg.densify.refine_stop} is past --static-iterations {cfg.static_iterations}"
         )
     return cfg

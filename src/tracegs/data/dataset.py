@@ -11,8 +11,8 @@ from pathlib import Path
 import torch
 
 from .cameras import Camera
-from .frames import SceneSplit, load_rgba
-from .scene import load_scene
+from .frames import Frame, SceneSplit, camera_key, load_rgba
+from .scene import available_splits, load_scene
 
 
 @dataclass
@@ -23,6 +23,7 @@ class View:
     time: float
     camera_id: int | None
     name: str
+    frame: Frame | None = None  # where it was read from (its mask, ``data/masks.py``)
 
 
 class ViewDataset:
@@ -36,11 +37,20 @@ class ViewDataset:
         t_max: float | None = None,
         t_min: float | None = None,
         device: torch.device | str = "cpu",
+        arriving: bool = False,
     ):
+        """``arriving``: also the frames that the split's cameras took in the scene's other splits
+        (a continual round: the same cameras keep filming past the training split's end)."""
         self.scene: SceneSplit = load_scene(root, split, downscale)
+        frames = list(self.scene.frames)
+        if arriving:
+            cameras, paths = {camera_key(f) for f in frames}, {f.image_path for f in frames}
+            for other in (s for s in available_splits(root) if s != split):
+                more = load_scene(root, other, downscale).frames
+                frames += [f for f in more if camera_key(f) in cameras and f.image_path not in paths]
         frames = [
             f
-            for f in self.scene.frames
+            for f in frames
             if (t_max is None or f.time <= t_max + 1e-9) and (t_min is None or f.time > t_min + 1e-9)
         ]
         self.background = torch.tensor(self.scene.background, dtype=torch.float32, device=device)
@@ -56,6 +66,7 @@ class ViewDataset:
                     time=f.time,
                     camera_id=f.camera_id,
                     name=f.name,
+                    frame=f,
                 )
             )
 

@@ -46,6 +46,13 @@ class Frame:
         return self.camera.height
 
 
+def camera_key(f: Frame) -> tuple:
+    """A camera's identity: its id when the dataset gives one, else its pose (to 1e-4)."""
+    if f.camera_id is not None:
+        return ("id", f.camera_id)
+    return tuple(round(float(v), 4) for v in f.camera.viewmat[:3].flatten())
+
+
 @dataclass
 class SceneSplit:
     """The frames of one split plus the scene-level facts the trainer needs."""

@@ -52,8 +52,6 @@ def visual_hull(
     image, and that all but ``tolerance`` of those see inside their foreground mask (``masks``: one
     [H, W] bool per camera, at the camera's size): masks from a segmenter miss a few pixels, and one
     camera's miss must not cut a hole through the object."""
-    if len(cameras) != len(masks):
-        raise ValueError(f"{len(cameras)} cameras and {len(masks)} masks")
     box = torch.as_tensor(box, dtype=torch.float32)
     size = box[1] - box[0]
     step = float(size.max()) / resolution
@@ -61,19 +59,49 @@ def visual_hull(
         box[0, i] + step * (torch.arange(max(int(round(float(size[i]) / step)), 1)) + 0.5) for i in range(3)
     ]
     grid = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    seen = torch.zeros(len(grid), dtype=torch.int32)
-    inside = torch.zeros(len(grid), dtype=torch.int32)
+    return grid[in_hull(grid, cameras, masks, min_views, tolerance)]
+
+
+def in_hull(
+    points: torch.Tensor,
+    cameras: list[Camera],
+    masks: list[np.ndarray],
+    min_views: int = 3,
+    tolerance: float = 0.1,
+) -> torch.Tensor:
+    """[N] bool: which of ``points`` [N, 3] lie in the visual hull of ``masks`` seen by ``cameras``
+    (the rule of ``visual_hull``)."""
+    if len(cameras) != len(masks):
+        raise ValueError(f"{len(cameras)} cameras and {len(masks)} masks")
+    seen = torch.zeros(len(points), dtype=torch.int32)
+    inside = torch.zeros(len(points), dtype=torch.int32)
     for camera, mask in zip(cameras, masks, strict=True):
         mask = torch.as_tensor(np.asarray(mask, dtype=bool))
         if mask.shape != (camera.height, camera.width):
             raise ValueError(f"a mask of {tuple(mask.shape)} for a camera of {camera.height}x{camera.width}")
-        row, col, visible = pixels(grid, camera)
+        row, col, visible = pixels(points, camera)
         seen += visible.int()
         hit = torch.zeros_like(visible)
         hit[visible] = mask[row[visible], col[visible]]
         inside += hit.int()
-    keep = (seen >= min_views) & (inside >= torch.ceil((1.0 - tolerance) * seen).int())
-    return grid[keep]
+    return (seen >= min_views) & (inside >= torch.ceil((1.0 - tolerance) * seen).int())
+
+
+def in_any_hull(root, frames: list, points: torch.Tensor, every: int = 4, **rule) -> torch.Tensor | None:
+    """[N] bool: which of ``points`` [N, 3] lie in the visual hull of the foreground masks at one or
+    more of every ``every``-th time of ``frames`` (the space the subject sweeps over them: what lies
+    outside stands still); None when no time has masks from 3 cameras. ``rule``: of ``in_hull``."""
+    from .masks import read_foreground
+
+    times = sorted({f.time for f in frames})[::every]
+    inside, any_time = torch.zeros(len(points), dtype=torch.bool), False
+    for t in times:
+        have = [(f.camera.to("cpu"), m) for f in frames if f.time == t for m in [read_foreground(root, f)]]
+        have = [(c, m) for c, m in have if m is not None]
+        if len(have) >= rule.get("min_views", 3):
+            inside |= in_hull(points.cpu(), [c for c, _ in have], [m for _, m in have], **rule)
+            any_time = True
+    return inside.to(points.device) if any_time else None
 
 
 def hull_colours(points: torch.Tensor, cameras: list[Camera], images: list[torch.Tensor]) -> torch.Tensor:

@@ -11,6 +11,7 @@ by nearest sampling, as the images are resized.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -20,13 +21,17 @@ from .frames import DatasetError, Frame
 
 def foreground_path(root: str | Path, frame: Frame) -> Path:
     """Where the foreground mask of ``frame`` (of the scene folder ``root``) is (see the module docstring)."""
-    root = Path(root).resolve()
-    image = Path(frame.image_path).resolve()
-    for base, folder in ((root / "ims", root / "seg"), (root, root / "masks")):
-        try:
-            return (folder / image.relative_to(base)).with_suffix(".png")
-        except ValueError:
-            continue
+    # as written, then with links resolved: a scene folder may link its images from elsewhere
+    for root_, image in (
+        (Path(os.path.abspath(root)), Path(os.path.abspath(frame.image_path))),
+        (Path(root).resolve(), Path(frame.image_path).resolve()),
+    ):
+        for base, folder in ((root_ / "ims", root_ / "seg"), (root_, root_ / "masks")):
+            try:
+                return (folder / image.relative_to(base)).with_suffix(".png")
+            except ValueError:
+                continue
+    image = Path(frame.image_path)
     raise DatasetError(f"{image}: the image lies outside {root}, so its mask cannot be found")
 
 

@@ -10,6 +10,7 @@ command takes such a folder as ``--data`` (``load_scene`` chooses this reader wh
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -67,7 +68,7 @@ def load_panoptic(root: str | Path, split: str = "train", downscale: int = 1) ->
                 camera = camera.scaled(1.0 / downscale)
             cam_id = int(ids[i][c])
             label = f"c{cam_id:02d}_f{i:03d}"
-            image = (root / "ims" / names[i][c]).resolve()
+            image = Path(os.path.abspath(root / "ims" / names[i][c]))  # (links kept: masks sit beside)
             frames.append(Frame(image, time, camera, cam_id, label, downscale))
     return SceneSplit(
         root=root,

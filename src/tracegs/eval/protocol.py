@@ -20,6 +20,7 @@ import torch
 from tqdm import tqdm
 
 from ..config import apply_overrides
+from ..data.frames import camera_key
 from ..data.scene import Frame, available_splits, load_image, load_scene
 from ..extrapolate import gaussians_at
 from ..run import load_run
@@ -33,6 +34,7 @@ def split_frames(
     downscale: int = 1,
     with_cameras: bool = False,
     future_end: float | None = None,
+    horizon_end: float | None = None,
 ) -> dict[str, list[Frame]] | dict[str, list[tuple[str, Frame]]]:
     """Frames of the interpolation and extrapolation splits (deduplicated by image path).
 
@@ -42,17 +44,20 @@ def split_frames(
     settings never looks at a test frame. With ``future_end`` the extrapolation split is the
     validation future: frames of the train split with t_train_end < t <= future_end. With
     ``with_cameras``, ``(cameras, frame)`` pairs where ``cameras`` says whether a training camera
-    took the frame ("train_cameras") or not ("new_cameras")."""
+    took the frame ("train_cameras") or not ("new_cameras"). With ``horizon_end`` (a continual
+    round's score), only the extrapolation split, up to that time."""
     chosen, seen, train_cameras = [], set(), set()  # (protocol split, cameras, split, frame)
     for split in available_splits(data):
         frames = load_scene(data, split, downscale).frames
         if split == "train":
-            train_cameras = {_camera_key(f) for f in frames}
+            train_cameras = {camera_key(f) for f in frames}
         for f in frames:
             if f.image_path in seen:
                 continue
             seen.add(f.image_path)
-            cameras = "train_cameras" if _camera_key(f) in train_cameras else "new_cameras"
+            cameras = "train_cameras" if camera_key(f) in train_cameras else "new_cameras"
+            if horizon_end is not None and not t_train_end + 1e-9 < f.time <= horizon_end + 1e-9:
+                continue
             if f.time > t_train_end + 1e-9:
                 if future_end is None or (split == "train" and f.time <= future_end + 1e-9):
                     chosen.append(("extrapolation", cameras, split, f))
@@ -72,13 +77,6 @@ def _unique_names(chosen: list[tuple[str, str, str, Frame]]) -> list[tuple[str, 
         (protocol, cameras, f if counts[protocol, f.name] == 1 else replace(f, label=f"{split}_{f.name}"))
         for protocol, cameras, split, f in chosen
     ]
-
-
-def _camera_key(f: Frame) -> tuple:
-    """A camera's identity: its id when the dataset gives one, else its pose (to 1e-4)."""
-    if f.camera_id is not None:
-        return ("id", f.camera_id)
-    return tuple(round(float(v), 4) for v in f.camera.viewmat[:3].flatten())
 
 
 def _aggregate(records: list[dict], with_lpips: bool) -> dict:
@@ -107,12 +105,14 @@ def evaluate_run(
     future_end: float | None = None,
     render_settings: dict | None = None,
     out: Path | None = None,
+    horizon_end: float | None = None,
 ) -> dict:
     """Render both splits of a trained run and score them (schema in docs/EVALUATION.md); with
     ``future_end``, the extrapolation split is the validation future (``split_frames``).
     ``render_settings``: ``extrapolation`` settings that change rendering without a new calibration,
     by dotted name as in ``config.apply_overrides`` (e.g. ``{"extrapolation.free_bodies": False}``).
     ``out``: the folder of the rendered images (``OUT/<split>/<frame>.png``; default ``RUN/eval``).
+    ``horizon_end``: score only the future up to this time (``split_frames``).
     Ground truth the scene's ``gt/`` lacks, or holds in another layout, is skipped and said so in the
     result's ``notes``."""
     run = Path(run)
@@ -133,7 +133,7 @@ def evaluate_run(
     result: dict = {}
     notes: list[str] = []
     names = part_names(data, notes)
-    splits = split_frames(data, t_end, cfg.downscale, with_cameras=True, future_end=future_end)
+    splits = split_frames(data, t_end, cfg.downscale, True, future_end, horizon_end)
     progress = tqdm(
         total=sum(map(len, splits.values())), desc="eval", unit="image", disable=None, leave=False
     )
@@ -147,7 +147,8 @@ def evaluate_run(
             gaussians = gaussians_at(model, state, t)
             for cameras, f in by_time[t]:
                 cam = f.camera.to(dev)
-                pred = model.render(gaussians, cam, cfg.sh_degree, background).image.clamp(0, 1)
+                pred = model.render(gaussians, cam, cfg.sh_degree, background).image
+                pred = model.colour(pred, f.camera_id).clamp(0, 1)  # a training camera's own colours
                 gt = load_image(f, scene.background).to(dev)
                 if half_res:
                     pred, gt = (

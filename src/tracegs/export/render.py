@@ -25,8 +25,11 @@ def render_at(model, state, t: float, camera: Camera, background: torch.Tensor) 
 
 @torch.no_grad()
 def render_gaussians(model, gaussians: dict, camera: Camera, background: torch.Tensor) -> torch.Tensor:
-    """Image [H, W, 3] of the Gaussians whose geometry at some time is ``gaussians`` (``gaussians_at``)."""
-    return model.render(gaussians, camera, model.cfg.sh_degree, background).image.clamp(0, 1)
+    """Image [H, W, 3] of the Gaussians whose geometry at some time is ``gaussians`` (``gaussians_at``),
+    in the colours of a camera the run was not trained with (``models/colour.py``)."""
+    return model.colour(model.render(gaussians, camera, model.cfg.sh_degree, background).image, None).clamp(
+        0, 1
+    )
 
 
 def orbit_camera(reference: list[Camera], azimuth_deg: float, elevation_deg: float | None = None) -> Camera:

@@ -17,6 +17,7 @@ from torch import nn
 from ..physics.free_body import median_spacing
 from ..physics.integrate import acceleration_consistency, integrate, params_in_world
 from ..render import rasterize
+from .colour import CameraColour
 from .deformation import apply_deformation, make_deformation_field
 from .dynamics import DynamicsField
 
@@ -24,7 +25,16 @@ from .dynamics import DynamicsField
 class TraceModel(nn.Module):
     """Gaussians (``self.gaussians``), and the fields the method needs (``deformation``, ``dynamics``)."""
 
-    def __init__(self, cfg, gaussians: nn.ParameterDict, aabb: torch.Tensor, frame_interval: float):
+    def __init__(
+        self,
+        cfg,
+        gaussians: nn.ParameterDict,
+        aabb: torch.Tensor,
+        frame_interval: float,
+        camera_ids: list[int] | None = None,
+    ):
+        """``camera_ids``: the training cameras whose colours ``cfg.camera_colour`` learns (a trained
+        run's are read from its checkpoint)."""
         super().__init__()
         self.cfg = cfg
         self.bf16 = cfg.bf16
@@ -35,12 +45,15 @@ class TraceModel(nn.Module):
         # the frame the fields see positions in (``set_field_frame``); the world's until set
         self.register_buffer("field_center", torch.zeros(3))
         self.register_buffer("field_scale", torch.ones(()))
+        self.register_buffer("near_plane", torch.tensor(0.01))  # world units (``set_near_plane``)
+        self._near = 0.01
         self._frame_scale: float | None = None  # the scale as a number; None: the world's frame
         self.register_load_state_dict_pre_hook(_default_field_frame)
         self.register_load_state_dict_post_hook(_sync_frame_after_load)
         uses_deformation = cfg.method == "defgs" or (cfg.method == "trace" and cfg.stage2.use_deformation)
         self.deformation = make_deformation_field(cfg.deformation, aabb) if uses_deformation else None
         self.dynamics = DynamicsField(cfg.dynamics) if cfg.method == "trace" else None
+        self.camera_colour = CameraColour(camera_ids or []) if cfg.camera_colour else None
         self.static_mask: torch.Tensor | None = None
         """[N] bool: Gaussians marked static during training (``stage2.skip_static``), kept at their
         canonical geometry at every time and skipped by the fields; None: the fields move them all."""
@@ -56,7 +69,13 @@ class TraceModel(nn.Module):
         self.field_scale.fill_(float(scale))
         self._sync_frame()
 
+    def set_near_plane(self, near: float) -> None:
+        """Gaussians nearer a camera than ``near`` (world units, along its axis) are not drawn."""
+        self.near_plane.fill_(float(near))
+        self._sync_frame()
+
     def _sync_frame(self) -> None:
+        self._near = float(self.near_plane)
         identity = bool((self.field_center == 0).all()) and float(self.field_scale) == 1.0
         self._frame_scale = None if identity else float(self.field_scale)
 
@@ -174,6 +193,11 @@ class TraceModel(nn.Module):
         self.static_mask = mask
         self._moving = None if mask is None else torch.nonzero(~mask).squeeze(1)
 
+    @property
+    def moving_rows(self) -> torch.Tensor | None:
+        """Indices of the Gaussians not held static (None: no static mask)."""
+        return self._moving_rows()
+
     def _moving_rows(self) -> torch.Tensor | None:
         """Indices of the Gaussians the fields move, or None when they move all of them."""
         if self._moving is not None and self.static_mask.shape[0] != self.gaussians["means"].shape[0]:
@@ -246,15 +270,27 @@ class TraceModel(nn.Module):
         return float(self.frame_interval)
 
     # ----- rendering --------------------------------------------------------------------------
-    def render(self, state: dict[str, torch.Tensor], camera, sh_degree: int, background: torch.Tensor):
-        """Rasterise Gaussians whose geometry is ``state`` (means, quats, log-scales) from ``camera``."""
+    def colour(self, image: torch.Tensor, camera_id: int | None) -> torch.Tensor:
+        """A rendered ``image`` [H, W, 3] in the colours of training camera ``camera_id``
+        (``camera_colour``); unchanged without it, or for a camera that was not trained."""
+        return image if self.camera_colour is None else self.camera_colour(image, camera_id)
+
+    def render(
+        self, state: dict[str, torch.Tensor], camera, sh_degree: int, background: torch.Tensor, rows=None
+    ):
+        """Rasterise Gaussians whose geometry is ``state`` (means, quats, log-scales) from ``camera``;
+        ``rows``: only those Gaussians (indices)."""
         g = self.gaussians
         sh = torch.cat([g["sh0"], g["shN"]], dim=1)
+        opacities = torch.sigmoid(g["opacities"])
+        if rows is not None:
+            state = {k: state[k][rows] for k in ("means", "quats", "scales")}
+            sh, opacities = sh[rows], opacities[rows]
         return rasterize(
             state["means"],
             state["quats"],
             torch.exp(state["scales"]),
-            torch.sigmoid(g["opacities"]),
+            opacities,
             sh,
             camera.viewmat,
             camera.K,
@@ -262,6 +298,7 @@ class TraceModel(nn.Module):
             camera.height,
             sh_degree=sh_degree,
             background=background,
+            near_plane=self._near,
             backend=self.cfg.backend,
         )
 
@@ -270,6 +307,7 @@ def _default_field_frame(module, state_dict, prefix, *_) -> None:
     """Checkpoints written before the fields had a frame of their own: the world's."""
     state_dict.setdefault(prefix + "field_center", torch.zeros(3))
     state_dict.setdefault(prefix + "field_scale", torch.ones(()))
+    state_dict.setdefault(prefix + "near_plane", torch.tensor(0.01))  # (the rasteriser's default, gsplat's)
 
 
 def _sync_frame_after_load(module, _incompatible_keys) -> None:

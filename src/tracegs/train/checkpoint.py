@@ -27,11 +27,12 @@ from ..run import (
     TrainingDiverged,
     changed_settings,
     gaussians_of,
+    load_tensors,
     training_changes,
     truncate_log,
 )
 from ..utils import atomic_write_bytes, random_states, set_random_states
-from .optim import gaussian_optimizers
+from .optim import colour_optimizer, gaussian_optimizers
 
 
 def training_fingerprint(data: ViewDataset) -> str:
@@ -87,6 +88,7 @@ def trainer_state(trainer) -> dict:
         "model": model.state_dict(),
         "optimizers": {k: o.state_dict() for k, o in trainer.optimizers.items()},
         "field_optimizer": trainer.field_opt.state_dict() if trainer.field_opt is not None else None,
+        "colour_optimizer": trainer.colour_opt.state_dict() if trainer.colour_opt is not None else None,
         "strategy": dict(trainer.strategy_state),
         "lr_scale": trainer.lr_scale,
         "restorations": list(trainer.restorations),
@@ -105,6 +107,10 @@ def restore_trainer_state(trainer, ckpt: dict) -> None:
         o.load_state_dict(ckpt["optimizers"][k])
     if trainer.field_opt is not None and ckpt["field_optimizer"] is not None:
         trainer.field_opt.load_state_dict(ckpt["field_optimizer"])
+    if trainer.colour_opt is not None:  # (made again: loading the model may resize the colours)
+        trainer.colour_opt = colour_optimizer(model.camera_colour, trainer.cfg.optim)
+        if ckpt.get("colour_optimizer") is not None:
+            trainer.colour_opt.load_state_dict(ckpt["colour_optimizer"])
     trainer.strategy_state = trainer.strategy.initialize_state() | ckpt.get("strategy", {})
     trainer.step, trainer.train_seconds = ckpt["step"], ckpt["train_seconds"]
     trainer.lr_scale = float(ckpt.get("lr_scale", 1.0))
@@ -116,6 +122,20 @@ def restore_trainer_state(trainer, ckpt: dict) -> None:
     set_random_states(ckpt["rng"], trainer.device)
     if "generator" in ckpt["rng"]:
         trainer.generator.set_state(ckpt["rng"]["generator"].cpu())
+
+
+def start_from(trainer, path: Path) -> None:
+    """Start ``trainer``'s model as the checkpoint ``path`` ended (Gaussians, fields, per-camera
+    colours), with fresh optimisers and statistics: a continual round goes on from the last one."""
+    if not path.is_file():
+        raise RunError(f"{path}: no checkpoint to start from (the previous round has not trained)")
+    ckpt = load_tensors(path, trainer.device)
+    model = trainer.model
+    model.gaussians = gaussians_of(ckpt["model"])
+    model.load_state_dict(ckpt["model"])
+    trainer.optimizers = gaussian_optimizers(model.gaussians, trainer.cfg.optim, trainer.extent)
+    trainer.colour_opt = colour_optimizer(model.camera_colour, trainer.cfg.optim)
+    trainer.strategy_state = trainer.strategy.initialize_state()
 
 
 class Checkpoints:

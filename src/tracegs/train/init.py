@@ -1,6 +1,7 @@
-"""The Gaussians a training starts from: the scene's points (``points3d.ply``, e.g. SfM), or with
-``init_hull`` the visual hull of its foreground masks (``data/hull.py``) plus random Gaussians in the
-box for the surroundings, else random Gaussians in the box (3DGS's random init)."""
+"""The Gaussians a training starts from: the scene's points (``points3d.ply``, e.g. SfM), else random
+Gaussians in the box (3DGS's random init), to which a capture with foreground masks may add the visual
+hull of its subject (``init_hull``, ``data/hull.py``) and any inward-facing capture its surroundings
+(``init_surroundings``, ``data/surroundings.py``), both from the first time's training images."""
 
 from __future__ import annotations
 
@@ -16,8 +17,8 @@ from ..models.gaussians import create_gaussians, random_gaussians
 def initial_gaussians(
     cfg: TrainConfig, aabb: torch.Tensor, device, log=print, frames: list | None = None
 ) -> torch.nn.ParameterDict:
-    """The initial Gaussians of a run (module docstring); ``log`` says what the hull gave; ``frames``:
-    the training split's frames when they are already loaded."""
+    """The initial Gaussians of a run (module docstring); ``log`` says what the hull and the
+    surroundings gave; ``frames``: the training split's frames when they are already loaded."""
     ply = Path(cfg.data) / "points3d.ply"
     if ply.is_file():
         from ..data.points import read_points
@@ -25,19 +26,55 @@ def initial_gaussians(
         points, colors = read_points(ply)
         return create_gaussians(points.to(device), colors.to(device), cfg.sh_degree)
     background = random_gaussians(cfg.init_points, aabb, cfg.sh_degree)
-    if not cfg.init_hull:
+    if not (cfg.init_hull or cfg.init_surroundings):
         return background
-    from ..data.hull import hull_points
-
     frames = frames if frames is not None else load_scene(cfg.data, "train", cfg.downscale).frames
-    hull = hull_points(cfg.data, frames, aabb.cpu(), cfg.hull_resolution)
-    if hull is None:
-        log(f"{cfg.data}: no foreground masks at the first time (seg/ or masks/): random initial Gaussians")
+    parts = []
+    if cfg.init_hull:
+        parts.append(_hull(cfg, frames, aabb, log))
+    if cfg.init_surroundings:
+        parts.append(_surroundings(cfg, frames, log))
+    added = [create_gaussians(p.to(device), c.to(device), cfg.sh_degree) for p, c in filter(None, parts)]
+    if not added:
         return background
-    points, colors = hull
-    log(f"visual hull of the foreground masks: {len(points)} initial Gaussians, {cfg.init_points} random")
-    fg = create_gaussians(points.to(device), colors.to(device), cfg.sh_degree)
+    log(f"{cfg.init_points} random initial Gaussians in the box")
     bg = background.to(device)
     return torch.nn.ParameterDict(
-        {name: torch.nn.Parameter(torch.cat([fg[name].detach(), bg[name].detach()])) for name in fg}
+        {
+            name: torch.nn.Parameter(torch.cat([*(a[name].detach() for a in added), bg[name].detach()]))
+            for name in bg
+        }
     )
+
+
+def _hull(cfg: TrainConfig, frames: list, aabb: torch.Tensor, log):
+    from ..data.hull import hull_points
+
+    hull = hull_points(cfg.data, frames, aabb.cpu(), cfg.hull_resolution)
+    if hull is None:
+        log(
+            f"{cfg.data}: no foreground masks at the first time (seg/ or masks/): no visual hull, random initial Gaussians"
+        )
+    else:
+        log(f"visual hull of the foreground masks: {len(hull[0])} initial Gaussians")
+    return hull
+
+
+def _surroundings(cfg: TrainConfig, frames: list, log):
+    from ..data.cameras import focus_point
+    from ..data.frames import load_image
+    from ..data.masks import read_foreground
+    from ..data.surroundings import surroundings
+
+    t0 = min(f.time for f in frames)
+    first = [f for f in frames if f.time == t0]
+    cameras = [f.camera.to("cpu") for f in first]
+    centre = focus_point(torch.stack([c.viewmat for c in cameras]))
+    if centre is None or len(first) < 2:
+        log(f"{cfg.data}: the cameras do not look at one point: no surroundings")
+        return None
+    images = [load_image(f).cpu() for f in first]
+    masks = [read_foreground(cfg.data, f) for f in first]
+    points, colours = surroundings(cameras, images, masks, centre.float(), cfg.init_surroundings)
+    log(f"surroundings seen by the first time's cameras: {len(points)} initial Gaussians")
+    return points, colours

@@ -39,6 +39,11 @@ def field_optimizer(groups: dict[str, list[nn.Parameter]], cfg) -> torch.optim.O
     return torch.optim.Adam(param_groups, eps=1e-15, fused=fused or None)
 
 
+def colour_optimizer(colour: nn.Module | None, cfg) -> torch.optim.Optimizer | None:
+    """Adam for the per-camera colours (``models/colour.py``), trained in both stages; None without."""
+    return None if colour is None else torch.optim.Adam(colour.parameters(), lr=cfg.colour_lr, eps=1e-15)
+
+
 def field_lrs(cfg, extent: float, dynamic_step: int, dynamic_total: int) -> dict[str, float]:
     """Learning rate of every field group at this step of the dynamic stage (exponential decay)."""
     frac = dynamic_step / max(dynamic_total, 1)

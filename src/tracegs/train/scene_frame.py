@@ -46,6 +46,13 @@ def camera_frame(data: ViewDataset) -> tuple[torch.Tensor, float] | None:
     return torch.round(point / step) * step + 0.0, distance / BLENDER_CAMERA_DISTANCE  # + 0.0: no -0.0
 
 
+def capture_scale(data: ViewDataset) -> float:
+    """The size of a capture against the Blender layout (``camera_frame``), to three digits; 1 for a
+    forward-facing one."""
+    frame = camera_frame(data)
+    return 1.0 if frame is None else float(f"{frame[1]:.3g}")
+
+
 def field_frame(cfg: TrainConfig, data: ViewDataset) -> tuple[torch.Tensor, float]:
     """Centre [3] and scale of the frame the fields see positions in (``TraceModel.set_field_frame``).
 

@@ -49,13 +49,16 @@ from .checkpoint import (
     check_resumable,
     restore_after,
     restore_trainer_state,
+    start_from,
     trainer_state,
     training_fingerprint,
 )
+from .foreground import hold_surroundings, mark_outside_masks
 from .guard import NonFinite, check_parameters, check_step, interrupt_at_step_end
 from .init import initial_gaussians
-from .losses import photometric_loss
+from .losses import views_loss
 from .optim import (
+    colour_optimizer,
     field_lrs,
     field_optimizer,
     gaussian_lrs,
@@ -65,16 +68,16 @@ from .optim import (
     set_lr,
 )
 from .report import describe, report_step, stage, summary
-from .scene_frame import default_aabb, field_frame
+from .scene_frame import capture_scale, default_aabb, field_frame
 from .strategy import DefaultStrategy
 from .threads import ThreadPolicy
 
 
 class Trainer:
     """Trains one run; ``Trainer(cfg).train()`` is what ``tracegs train`` does. A run folder that holds a
-    checkpoint is resumed from it (with the same settings and the same training images)."""
+    checkpoint is resumed from it (same settings and images); else ``warm_start``'s model is the start."""
 
-    def __init__(self, cfg: TrainConfig, progress: bool = True):
+    def __init__(self, cfg: TrainConfig, progress: bool = True, warm_start: Path | None = None):
         validate(cfg)
         # the run records where its data is absolutely: commands started elsewhere find it
         cfg = dataclasses.replace(cfg, data=Path(cfg.data).resolve(), run=Path(cfg.run).resolve())
@@ -88,7 +91,14 @@ class Trainer:
             self.t_train_end = cfg.t_train_end
         else:  # the dataset's own value (tracegs synth writes it), else every training frame
             self.t_train_end = load_scene(cfg.data, "train", cfg.downscale).t_train_end
-        self.data = ViewDataset(cfg.data, "train", cfg.downscale, t_max=self.t_train_end, device=self.device)
+        self.data = ViewDataset(
+            cfg.data,
+            "train",
+            cfg.downscale,
+            t_max=self.t_train_end,
+            device=self.device,
+            arriving=cfg.arriving_frames,
+        )
         if len(self.data) == 0:
             raise DatasetError(f"{cfg.data}: no training frames with time <= {self.t_train_end}")
         self.fingerprint = training_fingerprint(self.data)
@@ -101,10 +111,13 @@ class Trainer:
         self.static_fraction: float | None = None  # of the Gaussians marked static (stage2.skip_static)
         log = tqdm.write if progress else (lambda _message: None)
         gaussians = initial_gaussians(cfg, self.aabb, self.device, log, self.data.scene.frames)
-        self.model = TraceModel(cfg, gaussians, self.aabb, self.dt_frame).to(self.device)
+        cameras = sorted({v.camera_id for v in self.data.views if v.camera_id is not None})
+        self.model = TraceModel(cfg, gaussians, self.aabb, self.dt_frame, cameras).to(self.device)
         self.model.set_field_frame(*field_frame(cfg, self.data))
+        self.model.set_near_plane(cfg.near_plane * capture_scale(self.data))
         self.optimizers = gaussian_optimizers(self.model.gaussians, cfg.optim, self.extent)
         self.field_opt = field_optimizer(self.model.field_parameter_groups(), cfg.optim)
+        self.colour_opt = colour_optimizer(self.model.camera_colour, cfg.optim)
         counts = sorted(len(v) for v in self.data.by_time().values())  # cameras per time
         self.views_per_step = max(1, min(cfg.stage2.views_per_step, counts[len(counts) // 2]))
         views = cfg.dynamic_iterations * cfg.stage2.views_per_step  # as many where fewer cameras saw a time
@@ -122,6 +135,8 @@ class Trainer:
         self.threads: ThreadPolicy | None = None  # the thread counts of the steps this call trains
         if (self.run / CHECKPOINT).is_file():
             self._resume(self.run / CHECKPOINT)
+        elif warm_start is not None:  # a continual round (``continual.py``) goes on from the last one's model
+            start_from(self, Path(warm_start) / CHECKPOINT)
 
     # ----- data ---------------------------------------------------------------------------------
     def _static_views(self) -> list[int]:
@@ -194,7 +209,7 @@ class Trainer:
             set_group_lrs(self.field_opt, {k: v * scale for k, v in fields.items()})
 
     def _zero_grads(self) -> None:
-        for opt in [*self.optimizers.values(), self.field_opt]:
+        for opt in [*self.optimizers.values(), self.field_opt, self.colour_opt]:
             if opt is not None:
                 opt.zero_grad(set_to_none=True)
 
@@ -218,19 +233,8 @@ class Trainer:
         return stats
 
     def views_loss(self, state: dict, views: list, background: torch.Tensor) -> tuple[dict, list[dict]]:
-        """The photometric loss terms of Gaussians ``state`` rendered from ``views`` (the mean over
-        them; the fields' state is shared), and each view's render info for the densification."""
-        infos, losses = [], {}
-        for view in views:
-            target = self.data.target(view, background) if self.cfg.random_background else view.image
-            out = self.model.render(state, view.camera, self.sh_degree(), background)
-            size = {"width": view.camera.width, "height": view.camera.height}
-            infos.append({"means2d": out.means2d, "radii": out.radii, **size})
-            self.strategy.step_pre_backward(infos[-1])
-            for name, value in photometric_loss(out.image, target, self.cfg.optim.ssim_weight).items():
-                value = value / len(views) if len(views) > 1 else value
-                losses[name] = losses[name] + value if name in losses else value
-        return losses, infos
+        """The loss terms of Gaussians ``state`` rendered from ``views`` (``losses.views_loss``)."""
+        return views_loss(self, state, views, background)
 
     def _step(self) -> dict[str, float]:
         cfg, step = self.cfg, self.step
@@ -246,6 +250,8 @@ class Trainer:
         else:
             if dyn_step == 0:
                 self.model.begin_dynamic_stage()
+                if cfg.stage2.static_outside_masks:
+                    self.static_fraction = mark_outside_masks(self, tqdm.write if self.progress else len)
             skip = cfg.stage2.skip_static
             if skip and self.model.static_mask is None and step == self._static_marking_step():
                 threshold = cfg.stage2.static_displacement * self.extent
@@ -272,6 +278,8 @@ class Trainer:
             self._zero_grads()
             raise
         t_backward = self._clock()
+        if not static and cfg.stage2.freeze_surroundings:
+            hold_surroundings(self)
         for opt in self.optimizers.values():
             opt.step()
             opt.zero_grad(set_to_none=True)
@@ -279,6 +287,9 @@ class Trainer:
             self.field_opt.step()
         if self.field_opt is not None:
             self.field_opt.zero_grad(set_to_none=True)
+        if self.colour_opt is not None:
+            self.colour_opt.step()
+            self.colour_opt.zero_grad(set_to_none=True)
         report = self.strategy.step_post_backward(
             self.model.gaussians, self.optimizers, self.strategy_state, step, infos
         )
@@ -367,8 +378,7 @@ class Trainer:
         if self.progress:
             tqdm.write(f"interrupted: {self.run / CHECKPOINT} holds {held}; the same command resumes")
 
-    def describe(self) -> str:
-        """What this run trains, in a line or two (printed when training starts)."""
+    def describe(self) -> str:  # what this run trains, in a line or two (printed when it starts)
         return describe(self)
 
     def summary(self) -> dict:

@@ -1,0 +1,208 @@
+"""The sections of a training run's configuration (``TrainConfig`` nests them): ``optim``,
+``densify``, ``stage2``, ``extrapolation``. Each field's docstring is its ``--help``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+
+@dataclass
+class OptimConfig:
+    """Learning rates (3DGS for the Gaussians, Deformable-3DGS for the fields) and the loss."""
+
+    means_lr: float = 1.6e-4
+    """Initial position learning rate, multiplied by the scene extent."""
+    means_lr_final: float = 1.6e-6
+    """Final position learning rate (exponential decay), multiplied by the scene extent."""
+    sh0_lr: float = 2.5e-3
+    """Learning rate of the degree-0 SH coefficients."""
+    shN_lr: float = 2.5e-3 / 20
+    """Learning rate of the higher SH coefficients."""
+    opacity_lr: float = 5e-2
+    """Learning rate of the opacity logits."""
+    scale_lr: float = 5e-3
+    """Learning rate of the log-scales."""
+    quat_lr: float = 1e-3
+    """Learning rate of the quaternions."""
+    field_lr: float = 8e-4
+    """Initial learning rate of the deformation and dynamics fields (one Adam for both)."""
+    field_lr_final: float = 1.6e-6
+    """Final learning rate of the fields (exponential decay over the dynamic stage)."""
+    grid_lr: float = 1.6e-3
+    """Initial learning rate of the HexPlane planes (TRACE_4dgs), multiplied by the scene extent (4DGS)."""
+    grid_lr_final: float = 1.6e-4
+    """Final learning rate of the HexPlane planes, multiplied by the scene extent (4DGS)."""
+    ssim_weight: float = 0.2
+    """Loss = (1 - w) * L1 + w * (1 - SSIM)."""
+    mask_weight: float = 0.0
+    """Weight of the L1 between the coverage of the Gaussians that move (those not held static) and
+    each training view's foreground mask, where there are masks and Gaussians held static
+    (``stage2.static_outside_masks``): the subject's Gaussians draw the subject, and only it. 0 = off."""
+    colour_lr: float = 1e-3
+    """Learning rate of the per-camera gains (log) and offsets (``camera_colour``)."""
+    nan_lr_factor: float = 0.5
+    """What every learning rate is multiplied by when a non-finite loss, gradient or parameter makes
+    training restore its last good state (once; the second time training stops)."""
+
+
+@dataclass
+class DensifyConfig:
+    """Adaptive density control (clone / split / prune / opacity reset), 3DGS defaults."""
+
+    refine_start: int = 500
+    """Step (within the stage) at which densification starts."""
+    refine_stop: int = 15_000
+    """Step after which the number of Gaussians is frozen."""
+    refine_every: int = 100
+    """Densify and prune every this many steps."""
+    reset_every: int = 3000
+    """Reset opacities to ``reset_opacity`` every this many steps (0 = never)."""
+    reset_opacity: float = 0.01
+    """Opacity after a reset (3DGS: 0.01)."""
+    grow_grad2d: float = 0.0002
+    """View-space (NDC) positional gradient above which a Gaussian is cloned or split."""
+    grow_scale3d: float = 0.01
+    """Relative to the scene extent: smaller Gaussians are cloned, larger ones split."""
+    prune_opacity: float = 0.005
+    """Gaussians below this opacity are removed."""
+    prune_scale3d: float = 0.1
+    """Relative to the scene extent: larger Gaussians are removed (after the first opacity reset)."""
+    max_gaussians: int = 1_000_000
+    """Growth stops at this count (a budget for slow devices)."""
+    refine_stop_fraction: float = 0.5
+    """Densification and opacity resets also stop after this fraction of the run's iterations, so that a
+    shortened run (e.g. ``--dynamic-iterations 2000``) still ends with a phase of plain optimisation."""
+
+
+@dataclass
+class Stage2Config:
+    """Stage 2 of TRACE (METHOD.md "Training"): f_defo and f_trd learn together; the switches of the
+    paper's Table 4 are ``dt_frames``, ``use_deformation``, ``physics_derivation`` (with
+    ``dynamics.order`` and ``dynamics.equivalent``)."""
+
+    dt_frames: float = 2.0
+    """Delta t between t' and t in frame intervals (Table 4 row (1): 1, 2 or 3)."""
+    integrator: Literal["rk2", "rk2_paper", "euler", "rk4"] = "rk2"
+    """Integrator of the translation-rotation dynamics, in training and extrapolation (rk2 = midpoint,
+    as the authors' code)."""
+    use_deformation: bool = True
+    """Ablation (3): without f_defo the dynamics start from the canonical Gaussians at t = 0."""
+    physics_derivation: bool = True
+    """Ablation (4): when false, f_trd is queried at the target time and its velocities used directly
+    (and re-queried at every step when extrapolating)."""
+    time_growth_fraction: float = 0.19
+    """The sampled time range grows in ``time_growth_stages`` steps over this fraction of the stage (the
+    paper: ~7000 of 37000 iterations); a fraction, so that a shortened run grows as fast."""
+    time_growth_stages: int = 8
+    """Number of equal steps in which the sampled time range grows (METHOD.md: eighths)."""
+    acceleration_consistency: float = 0.0
+    """Weight of a loss that teaches f_trd's accelerations the time derivative of its own velocity
+    field: f_trd is queried again where x_t' is carried to and its velocities compared with those the
+    accelerations predict (``physics.integrate.acceleration_consistency``). 0 = off (the paper)."""
+    consistency_frames: float = 0.0
+    """Frame intervals between f_trd's query at t' and the later query that ``acceleration_consistency``
+    compares with (0 = the step's own t - t'); same direction as t - t', turned back where it would
+    leave the time range sampled so far. A longer baseline divides the finite difference's error."""
+    skip_static: bool = False
+    """Once densification has stopped and the sampled time range covers the training span, mark the
+    Gaussians that f_defo moves less than ``static_displacement`` as static: from then on they keep
+    their canonical geometry at every time and the fields are evaluated on the moving ones only (the
+    fields' cost is proportional to the points they see). Off in the paper. Needs f_defo."""
+    static_displacement: float = 0.003
+    """Largest f_defo displacement over the training span, as a fraction of the scene extent, of a
+    Gaussian that ``skip_static`` marks static."""
+    static_margin: float = 5.0
+    """``skip_static`` leaves moving the Gaussians within this many median neighbour spacings of one
+    that moves: a part's slow patch by its hinge turns with it instead of being frozen (0: none)."""
+    static_outside_masks: bool = False
+    """When stage 2 starts, mark static (as ``skip_static`` does) the Gaussians outside the region the
+    foreground masks of the training times sweep, and not within ``static_margin`` spacings of it
+    (``train/foreground.py``): the surroundings keep stage 1's fit, the fields see only the subject.
+    Needs densification to have stopped (``densify.refine_stop`` <= ``static_iterations``)."""
+    freeze_surroundings: bool = False
+    """With ``static_outside_masks``: the Gaussians it holds static take no optimiser step in stage 2
+    (their colours, opacities and shapes stay stage 1's fit, ``train/foreground.py``)."""
+    views_per_step: int = 1
+    """Cameras rendered per step at the step's time (a batch of views): the fields are evaluated once
+    for that time and the loss is the mean over the views, so their cost is shared. Where fewer cameras
+    saw the times (a monocular video: one), stage 2 runs as many more steps (the same number of views).
+    1 = the paper's one-view step."""
+
+
+@dataclass
+class ExtrapolationConfig:
+    """After training: from which time the learned physics renders, which Gaussians it leaves still,
+    and which parts move as free bodies (``tracegs/extrapolate``, docs/PHYSICS.md "Extrapolation").
+    Chosen on the training images only, once, when training ends (``tracegs calibrate`` again)."""
+
+    handover_frames: float = 4.0
+    """Frames before t_max from which the physics takes over from f_defo when rendering later times
+    (the released code starts at 0.65-0.7 for data ending at 0.75; 0 = exactly t_max)."""
+    freeze_static: bool = True
+    """Hold still the Gaussians whose f_defo displacement over the training span stays below a
+    threshold, chosen after training by a pseudo-extrapolation on the training images
+    (``extrapolate/calibrate.py``); METHOD.md allows freezing what never moved."""
+    hold_unseen: bool = True
+    """Hold still the Gaussians that no training image shows over the last frames before the handover
+    and that f_trd moves more than ``unseen_speed_ratio`` times faster than f_defo moved them: f_trd
+    was never shown them, and would slide them (from under a surface) into view. Not in the paper."""
+    unseen_speed_ratio: float = 10.0
+    """How much faster than f_defo (plus a floor of 0.05 scene units per unit of time) f_trd must move
+    an unseen Gaussian for ``hold_unseen`` to hold it."""
+    hold_surface: bool = True
+    """Stop a moving Gaussian amid still ones where its path leaves the still surface around it
+    (farther from every still Gaussian than twice its distance at the handover, or twice their
+    spacing): such Gaussians draw what moves across a still surface (a moving part's shadow), and off
+    the surface would smear it over the background. Not in the paper."""
+    surface_still_fraction: float = 0.5
+    """Fraction of its ``surface_neighbours`` nearest Gaussians that must hold still for
+    ``hold_surface`` to count a moving Gaussian as drawing on their surface."""
+    surface_neighbours: int = 16
+    """Nearest Gaussians (at the handover) that ``hold_surface`` counts."""
+    free_bodies: bool = False
+    """Find the parts that move as one rigid body (without labels) and give each free part the future
+    of a free body, a pivot on a parabola and a constant spin (``physics/free_body.py``): free when it
+    touches nothing still (``free_body_isolation``) and its free body, started ``free_body_backtest``
+    frames before the handover, predicts the training images up to t_max with less than
+    ``free_body_tolerance`` times the learned physics' error. Off = the paper's extrapolation."""
+    free_body_window: int = 12
+    """Frames of f_defo's path before the handover (or the backtest's start) that a free body's
+    parabola is fitted to."""
+    free_body_backtest: int = 8
+    """Frames before the handover from which both models are backtested on the training images."""
+    free_body_refine_steps: int = 150
+    """Adam steps that fit each free body (velocity, acceleration, spin, position at the handover) to
+    the training images of its window (``extrapolate/free_bodies.py``). 0 = off."""
+    free_body_refine_views: int = 8
+    """Random training views rendered at each of those steps."""
+    free_body_isolation: float = 20.0
+    """A part is free only if 95% of its Gaussians lie farther than this many Gaussian spacings (the
+    median nearest-neighbour distance) from every still Gaussian at the handover."""
+    free_body_tolerance: float = 1.25
+    """A free part's free body is kept while its backtest error (mean squared, on the training images)
+    stays under this multiple of the learned physics'."""
+    joint_laws: bool = False
+    """Give each rigid part that turns on a hinge or slides on a rail (found as the free bodies' parts
+    are, among the moving Gaussians, and not a free body) a force law of its one joint coordinate,
+    ``q'' = f(q, q')`` (``physics/force_law.py``: constant, friction stop, spring-damper, pendulum),
+    identified on f_defo's path of the part up to the handover and integrated on from there
+    (``extrapolate/joints.py``). A law is adopted only where it is not ``constant`` and predicts the
+    held-out end of that path better than moving on at the last velocity and no worse than
+    ``joint_law_tolerance`` times the learned physics does; elsewhere the learned physics stays (the
+    paper's extrapolation) and the run summary says why. Off = the paper's extrapolation."""
+    joint_law_holdout: float = 0.25
+    """Fraction of the part's frames at the end of its path up to the handover (at least one) that the
+    laws are fitted without and scored on, to choose among them (``choose_law``) and to backtest the
+    chosen one against the learned physics; the chosen law is then fitted to every frame."""
+    joint_law_tolerance: float = 0.8
+    """A joint law is adopted only while its error on the held-out frames (RMS distance of the part's
+    Gaussians from f_defo's) stays under this multiple of the learned physics' started at the same
+    frame. Below 1: the learned physics is the paper's and holds a steady hinge by construction, so a
+    law must beat it clearly (on a steady `fan` a law within 0.96x of it cost 0.03 dB)."""
+    joint_fit_tolerance: float = 0.05
+    """A part is put on a joint only when the better of its hinge and its slider reproduces f_defo's
+    positions of the part over the frames within this fraction of the part's radius (RMS distance of
+    its Gaussians from their mean at the handover) of what the part's best rigid motion per frame
+    reproduces (RMS over its Gaussians and frames; f_defo moves no part exactly rigidly): what turns
+    on no fixed axis and slides along no fixed line keeps the learned physics."""
