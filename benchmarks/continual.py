@@ -41,30 +41,17 @@ def _complete(path: Path) -> bool:
 
 
 def plot(scene: str, tables: dict[str, dict], out: Path) -> Path:
-    import matplotlib
+    from tracegs.export.plots import line_plot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5, 3.2), dpi=120)
-    for method, table in tables.items():
-        rounds = table["rounds"]
-        ax.plot(
-            [r["observed_until"] for r in rounds],
-            [r["psnr"] for r in rounds],
-            marker="o",
-            label=LABEL[method],
-        )
-    ax.set_xlabel("observed until t (each round predicts the next window)")
-    ax.set_ylabel("PSNR of the predicted window (dB)")
-    ax.set_title(f"Continual learning: {scene}")
-    ax.grid(alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out)
-    plt.close(fig)
-    return out
+    series = {
+        LABEL[m]: ([r["observed_until"] for r in t["rounds"]], [r["psnr"] for r in t["rounds"]])
+        for m, t in tables.items()
+    }
+    xlabel, ylabel = (
+        "observed until t (each round predicts the next window)",
+        "PSNR of the predicted window (dB)",
+    )
+    return line_plot(series, out, xlabel, ylabel, f"Continual learning: {scene}")
 
 
 def main() -> None:

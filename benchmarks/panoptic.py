@@ -6,12 +6,13 @@ frames, and all cameras over the whole future, through `tracegs eval`'s protocol
 a figure of the test cameras at one training time (render over ground truth) per run in
 docs/figures/panoptic/; with --json, the record.
 
-Usage: .venv/bin/python benchmarks/panoptic.py TRACE_RUN DEFGS_RUN [--json docs/results/panoptic.json]
+Usage: .venv/bin/python benchmarks/panoptic.py TRACE_RUN DEFGS_RUN [RUN=LABEL ...] [--json docs/results/panoptic.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -29,15 +30,16 @@ from tracegs.run import load_run
 NEXT = 10  # frames of the short future scored on the test cameras
 
 
-def scores(run: Path) -> tuple[list[dict], dict]:
-    """The rows of one run and its summary facts."""
-    full = evaluate_run(run, with_lpips=False, save_images=False)
-    t_end = full["t_train_end"]
-    train = load_scene(full["scene"], "train")
-    dt = frame_interval([f.time for f in train.frames], train.fps)
-    last = max(f.time for f in train.frames if f.time <= t_end + 1e-9)
-    soon = evaluate_run(run, with_lpips=False, save_images=False, horizon_end=last + NEXT * dt)
-    method = "TRACE" if full["method"] == "trace" else "DefGS"
+def scores(run: Path, label: str | None = None) -> tuple[list[dict], dict]:
+    """The rows of one run (``label``: its method's name, else TRACE or DefGS) and its summary facts;
+    the evaluations are kept in RUN/panoptic_eval.json while the checkpoint is older."""
+    cache = run / "panoptic_eval.json"
+    if cache.is_file() and cache.stat().st_mtime > (run / "checkpoint.pt").stat().st_mtime:
+        full, soon = json.loads(cache.read_text())
+    else:
+        full, soon = _evaluations(run)
+        cache.write_text(json.dumps([full, soon]))
+    method = label or ("TRACE" if full["method"] == "trace" else "DefGS")
     new = "new_cameras"
     interp = full["interpolation"]
     rows = [
@@ -66,6 +68,15 @@ def scores(run: Path) -> tuple[list[dict], dict]:
     return rows, facts
 
 
+def _evaluations(run: Path) -> tuple[dict, dict]:
+    """`evaluate_run` over the whole protocol, and over the next ``NEXT`` frames only."""
+    full = evaluate_run(run, with_lpips=False, save_images=False)
+    train = load_scene(full["scene"], "train")
+    dt = frame_interval([f.time for f in train.frames], train.fps)
+    last = max(f.time for f in train.frames if f.time <= full["t_train_end"] + 1e-9)
+    return full, evaluate_run(run, with_lpips=False, save_images=False, horizon_end=last + NEXT * dt)
+
+
 def _cells(s: dict) -> dict:
     return {
         "frames": s["frames"],
@@ -92,17 +103,20 @@ def figure(run: Path, out: Path, t: float) -> Path:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("runs", nargs="+", type=Path)
+    ap.add_argument("runs", nargs="+", help="run folders, each RUN or RUN=LABEL (the rows' method name)")
     ap.add_argument("--json", type=Path, help="write the results record here (docs/results/panoptic.json)")
     ap.add_argument("--figures", type=Path, default=Path("docs/figures/panoptic"))
     ap.add_argument("--note", default="", help="a sentence added to the record's notes")
     args = ap.parse_args()
     rows, notes = [], []
-    for run in args.runs:
-        r, facts = scores(run)
+    for spec in args.runs:
+        path, _, label = spec.partition("=")
+        run = Path(path)
+        r, facts = scores(run, label or None)
         rows += r
         name = r[0]["method"]
-        figure(run, args.figures / f"{name.lower()}_test_cameras.png", 56 / 149)
+        if not label:
+            figure(run, args.figures / f"{name.lower()}_test_cameras.png", 56 / 149)
         notes.append(
             f"{name}: {facts['train_seconds']:.0f} s of training ({facts['iterations']} steps), "
             f"{facts['gaussians']} Gaussians."

@@ -10,18 +10,27 @@ import numpy as np
 
 def horizon_plot(runs: dict[str, Path], out: Path, title: str = "") -> Path:
     """Per-time extrapolation PSNR of each run (label -> run folder with eval.json) as a PNG."""
+    series = {}
+    for label, run in runs.items():
+        rows = json.loads((Path(run) / "eval.json").read_text())["extrapolation"]["per_time"]
+        series[label] = ([r["t"] for r in rows], [r["psnr"] for r in rows])
+    xlabel, ylabel = "time t (training ends before the first point)", "PSNR (dB, all cameras)"
+    return line_plot(series, out, xlabel, ylabel, title or "Extrapolation quality against horizon")
+
+
+def line_plot(series: dict[str, tuple[list, list]], out: Path, xlabel: str, ylabel: str, title: str) -> Path:
+    """A PNG of one line per ``series`` entry (label -> (xs, ys))."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(5, 3.2), dpi=120)
-    for label, run in runs.items():
-        rows = json.loads((Path(run) / "eval.json").read_text())["extrapolation"]["per_time"]
-        ax.plot([r["t"] for r in rows], [r["psnr"] for r in rows], marker="o", ms=3, label=label)
-    ax.set_xlabel("time t (training ends before the first point)")
-    ax.set_ylabel("PSNR (dB, all cameras)")
-    ax.set_title(title or "Extrapolation quality against horizon")
+    for label, (xs, ys) in series.items():
+        ax.plot(xs, ys, marker="o", ms=3, label=label)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
