@@ -91,13 +91,10 @@ def in_any_hull(root, frames: list, points: torch.Tensor, every: int = 4, **rule
     """[N] bool: which of ``points`` [N, 3] lie in the visual hull of the foreground masks at one or
     more of every ``every``-th time of ``frames`` (the space the subject sweeps over them: what lies
     outside stands still); None when no time has masks from 3 cameras. ``rule``: of ``in_hull``."""
-    from .masks import read_foreground
-
     times = sorted({f.time for f in frames})[::every]
     inside, any_time = torch.zeros(len(points), dtype=torch.bool), False
     for t in times:
-        have = [(f.camera.to("cpu"), m) for f in frames if f.time == t for m in [read_foreground(root, f)]]
-        have = [(c, m) for c, m in have if m is not None]
+        have = [(f.camera.to("cpu"), m) for f, m in views_at(root, frames, t) if m is not None]
         if len(have) >= rule.get("min_views", 3):
             inside |= in_hull(points.cpu(), [c for c, _ in have], [m for _, m in have], **rule)
             any_time = True
@@ -123,12 +120,8 @@ def hull_points(
     ``Frame`` list) from their foreground masks (``data.masks``), coloured from their images; None when
     fewer than ``min_views`` of those frames have a mask or nothing is kept."""
     from .frames import load_image
-    from .masks import read_foreground
 
-    t0 = min(f.time for f in frames)
-    first = [f for f in frames if f.time == t0]
-    masks = [read_foreground(root, f) for f in first]
-    have = [(f, m) for f, m in zip(first, masks, strict=True) if m is not None]
+    have = [(f, m) for f, m in views_at(root, frames, min(f.time for f in frames)) if m is not None]
     if len(have) < min_views:
         return None
     cameras = [f.camera.to("cpu") for f, _ in have]
@@ -137,3 +130,10 @@ def hull_points(
         return None
     images = [load_image(f).cpu() for f, _ in have]
     return points, hull_colours(points, cameras, images)
+
+
+def views_at(root, frames: list, t: float) -> list[tuple]:
+    """(frame, foreground mask [H, W] bool or None) of each of ``frames`` taken at time ``t``."""
+    from .masks import read_foreground
+
+    return [(f, read_foreground(root, f)) for f in frames if f.time == t]

@@ -63,18 +63,17 @@ def _hull(cfg: TrainConfig, frames: list, aabb: torch.Tensor, log):
 def _surroundings(cfg: TrainConfig, frames: list, log):
     from ..data.cameras import focus_point
     from ..data.frames import load_image
-    from ..data.masks import read_foreground
+    from ..data.hull import views_at
     from ..data.surroundings import surroundings
 
-    t0 = min(f.time for f in frames)
-    first = [f for f in frames if f.time == t0]
-    cameras = [f.camera.to("cpu") for f in first]
+    first = views_at(cfg.data, frames, min(f.time for f in frames))
+    cameras = [f.camera.to("cpu") for f, _ in first]
     centre = focus_point(torch.stack([c.viewmat for c in cameras]))
     if centre is None or len(first) < 2:
         log(f"{cfg.data}: the cameras do not look at one point: no surroundings")
         return None
-    images = [load_image(f).cpu() for f in first]
-    masks = [read_foreground(cfg.data, f) for f in first]
+    images = [load_image(f).cpu() for f, _ in first]
+    masks = [m for _, m in first]
     points, colours = surroundings(cameras, images, masks, centre.float(), cfg.init_surroundings)
     log(f"surroundings seen by the first time's cameras: {len(points)} initial Gaussians")
     return points, colours
