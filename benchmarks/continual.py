@@ -65,42 +65,38 @@ def main() -> None:
     ap.add_argument("--train-flags", default="", help="more `tracegs train` flags, e.g. the preset")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--figures", type=Path, default=Path("docs/figures/continual"))
-    ap.add_argument("--note", default="")
+    ap.add_argument(
+        "--note", default="", help="a sentence for the record's notes (the paper's numbers, the data)"
+    )
+    ap.add_argument("--title", default="Continual learning: TRACE and DefGS per round")
+    ap.add_argument(
+        "--benchmark", default="continual", help="the record's name (continual-panoptic for basketball)"
+    )
     args = ap.parse_args()
-    rows, averages = [], []
+    rows, windows = [], {}
     for scene in args.scenes:
         tables = {m: run_one(scene, m, args.runs, args) for m in METHODS}
         name = scene.name.split("_")[0]
         plot(name, tables, args.figures / f"{name}.png")
         for method, table in tables.items():
             for r in table["rounds"]:
-                rows.append({"scene": name, "method": LABEL[method], "round": r["round"],
-                             "observed until": r["observed_until"], "predicted until": r["extrapolated_until"],
-                             "psnr": round(r["psnr"], 2), "ssim": round(r["ssim"], 3),
-                             "lpips": round(r["lpips_vgg"], 3) if "lpips_vgg" in r else None,
-                             "wall s": r["wall_s"]})  # fmt: skip
+                print(f"{name} {LABEL[method]} round {r['round']}: observed until {r['observed_until']:.3f}, "
+                      f"predicted until {r['extrapolated_until']:.3f}: PSNR {r['psnr']:.2f}, SSIM {r['ssim']:.3f}, "
+                      f"{r['wall_s']:.0f} s")  # fmt: skip
+            windows[name] = ", ".join(f"{r['observed_until']:.3f}" for r in table["rounds"])
             avg = table["average"]
-            averages.append({"scene": name, "method": LABEL[method], "round": "average",
-                             "psnr": round(avg["psnr"], 2), "ssim": round(avg["ssim"], 3),
-                             "lpips": round(avg["lpips_vgg"], 3) if "lpips_vgg" in avg else None,
-                             "wall s": table["wall_s"]})  # fmt: skip
+            rows.append({"scene": name, "method": LABEL[method], "rounds": len(table["rounds"]),
+                         "psnr per round": " / ".join(f"{r['psnr']:.1f}" for r in table["rounds"]),
+                         "psnr": round(avg["psnr"], 2), "ssim": round(avg["ssim"], 3),
+                         "lpips": round(avg["lpips_vgg"], 3) if "lpips_vgg" in avg else None,
+                         "wall s": round(table["wall_s"])})  # fmt: skip
     for method in METHODS:
-        mine = [a for a in averages if a["method"] == LABEL[method]]
-        averages.append({"scene": "all", "method": LABEL[method], "round": "average",
-                         "psnr": round(sum(a["psnr"] for a in mine) / len(mine), 2),
-                         "ssim": round(sum(a["ssim"] for a in mine) / len(mine), 3)})  # fmt: skip
-    columns = [
-        "scene",
-        "method",
-        "round",
-        "observed until",
-        "predicted until",
-        "psnr",
-        "ssim",
-        "lpips",
-        "wall s",
-    ]
-    for row in [*rows, *averages]:
+        mine = [a for a in rows if a["method"] == LABEL[method] and a["scene"] != "all"]
+        rows.append({"scene": "all", "method": LABEL[method], "rounds": sum(a["rounds"] for a in mine),
+                     "psnr": round(sum(a["psnr"] for a in mine) / len(mine), 2),
+                     "ssim": round(sum(a["ssim"] for a in mine) / len(mine), 3)})  # fmt: skip
+    columns = ["scene", "method", "rounds", "psnr per round", "psnr", "ssim", "lpips", "wall s"]
+    for row in rows:
         print("  ".join(str(row.get(c, "")) for c in columns))
     if args.json:
         from tracegs.results import make_record, write_record
@@ -110,17 +106,20 @@ def main() -> None:
         )
         plan += " --frames" if args.frames else ""
         command = (
-            f"python benchmarks/continual.py {' '.join(str(s) for s in args.scenes)} --runs RUNS {plan}"
+            f"python benchmarks/continual.py {' '.join('DATA/' + s.name for s in args.scenes)} --runs RUNS {plan}"
             + (f" --train-flags {shlex.quote(args.train_flags)}" if args.train_flags else "")
             + f" --json {args.json}"
         )
         notes = (
             "Each round trains on the frames up to its window's end (the first from scratch, each next one "
             "from the round before: 25% of the stage-2 steps, no static stage, no densification) and is "
-            "scored on every camera's images in the next window. The paper reports TRACE 27.54 against "
-            "DefGS 19.72 average PSNR on ParticleNeRF with windows of 0.15; the data differ. " + args.note
+            "scored on every camera's images in the next window; psnr, ssim, lpips: the average over the "
+            "rounds (all: over the scenes); wall s: the whole sequence, training and scoring. Rounds observe up to "
+            + "; ".join(f"{k}: {v}" for k, v in windows.items())
+            + ". "
+            + args.note
         ).strip()
-        record = make_record("continual", [*averages, *rows], command, title="Continual learning: TRACE and DefGS per round",
+        record = make_record(args.benchmark, rows, command, title=args.title,
                              columns=columns, notes=notes)  # fmt: skip
         write_record(args.json, record)
 

@@ -104,6 +104,17 @@ def config_from_saved(data: dict, source: Path | str = "config") -> TrainConfig:
         raise RunError(f"{source}: {err}") from None
 
 
+def run_data(cfg: TrainConfig, data: str | Path | None = None) -> Path:
+    """The scene folder a run is evaluated on: ``data`` when given, else the one it was trained on;
+    FileNotFoundError saying which when no training split of either layout is there."""
+    path = Path(data or cfg.data)
+    if not any((path / name).is_file() for name in ("transforms_train.json", "train_meta.json")):
+        where = "" if data else f" (the run was trained with --data {cfg.data}, read from the current folder)"
+        raise FileNotFoundError(f"{path}: no scene here: no transforms_train.json or train_meta.json{where}; "
+                                "pass --data DIR")  # fmt: skip
+    return path
+
+
 def load_config(path: Path) -> TrainConfig:
     path = Path(path)
     if not path.is_file():

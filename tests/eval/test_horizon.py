@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+import torch
 
 from tracegs.config import make_config
 from tracegs.eval.horizon import long_horizon
@@ -23,3 +24,45 @@ def test_the_long_horizon_says_where_nothing_was_checked(tiny_scene, tmp_path):
     assert result["cameras"] == [3]  # the one camera training never used
     assert len(list((tmp_path / "horizon").glob("*.png"))) == len(rows)
     assert "nothing checks them" in result["note"]
+
+
+def test_a_run_whose_scene_moved_names_the_folder_and_asks_for_data(tiny_scene, tmp_path):
+    import shutil
+
+    from tracegs.run import run_data
+
+    scene = tmp_path / "mine"
+    shutil.copytree(tiny_scene, scene)
+    Trainer(make_config("tiny", data=scene, run=tmp_path / "run", init_points=60), progress=False).train()
+    scene.rename(tmp_path / "moved")
+    with pytest.raises(
+        FileNotFoundError, match=r"mine: no scene here.*trained with --data .*mine.*--data DIR"
+    ):
+        long_horizon(tmp_path / "run", 1.5)
+    assert run_data(make_config("tiny", data=scene), tmp_path / "moved") == tmp_path / "moved"
+
+
+def test_in_sight_is_the_share_of_what_moves_that_stays_near(tiny_scene, tmp_path, monkeypatch):
+    import tracegs.eval.horizon as horizon
+    from tracegs.models.trace import TraceModel
+
+    Trainer(
+        make_config("tiny", data=tiny_scene, run=tmp_path / "run", init_points=60), progress=False
+    ).train()
+    real = horizon.gaussians_at
+
+    def flying(model, state, t):  # the first quarter of the Gaussians leave after the training span
+        g = dict(real(model, state, t))
+        if t > float(state.t_max) + 1e-6:
+            g["means"] = g["means"].clone()
+            g["means"][: len(g["means"]) // 4] += 100.0
+        return g
+
+    monkeypatch.setattr(horizon, "gaussians_at", flying)
+    rows = long_horizon(tmp_path / "run", 1.5, out=tmp_path / "h1")["per_time"]
+    share = rows[0]["in_sight"]
+    assert share == pytest.approx(0.75, abs=0.02) and all(r["in_sight"] == share for r in rows)
+    # with the fields moving only the leaving quarter (the rest held static), nothing moving stays
+    quarter = property(lambda self: torch.arange(len(self.gaussians["means"]) // 4))
+    monkeypatch.setattr(TraceModel, "moving_rows", quarter)
+    assert long_horizon(tmp_path / "run", 1.5, out=tmp_path / "h2")["per_time"][0]["in_sight"] == 0.0

@@ -3,9 +3,10 @@ scored per time while there is ground truth, and a plain statement of where noth
 
 Three spans, each later one less supported: up to ``t_max`` the training images (and the backtests of
 the free bodies and joint laws, which end there); up to the last ground-truth time the scores; past it
-only the renders, and how much of the scene stays in sight (the share of the Gaussians whose centres
-stay inside the box of their positions at ``t_max``, padded by half its size): a prediction that
-flies apart shows as a falling share long before anyone looks at the images.
+only the renders, and how much of what moves stays in sight (the share of the Gaussians the fields
+move, all of them without a static mask, whose centres stay inside the box of their positions at
+``t_max``, padded by half its size): a prediction that flies apart shows as a falling share long
+before anyone looks at the images.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from ..data.dataset import frame_interval
 from ..data.frames import load_image
 from ..data.scene import available_splits, load_scene
 from ..extrapolate.future import gaussians_at
-from ..run import load_run
+from ..run import load_run, run_data
 from ..utils import atomic_write_image
 from .metrics import mae_psnr, mse
 
@@ -39,7 +40,7 @@ def long_horizon(
     out = run / "eval" / "horizon" if out is None else Path(out)
     loaded = load_run(run, device)
     model, state, cfg = loaded.model, loaded.state, loaded.config
-    data = Path(data or cfg.data)
+    data = run_data(cfg, data)
     dev = model.aabb.device
     t_max = float(loaded.meta["t_max"])
     splits = {s: load_scene(data, s, cfg.downscale) for s in available_splits(data)}
@@ -53,14 +54,16 @@ def long_horizon(
     truth = {(f.camera_id, round(f.time, 6)): f for f in pool}
     background = torch.tensor(train.background, device=dev)
     end_of_truth = max((f.time for f in pool), default=t_max)
-    at_max = gaussians_at(model, state, t_max)["means"]
+    moving = model.moving_rows  # the Gaussians the fields move (a capture's room stands still)
+    at_max = _moving(gaussians_at(model, state, t_max)["means"], moving)
     lo, hi = at_max.min(0).values, at_max.max(0).values
     pad = 0.5 * (hi - lo)
     rows, k = [], 1
     while t_max + k * dt <= until + 0.01 * dt:
         t = t_max + k * dt
         g = gaussians_at(model, state, t)
-        inside = ((g["means"] >= lo - pad) & (g["means"] <= hi + pad)).all(-1).float().mean()
+        means = _moving(g["means"], moving)
+        inside = ((means >= lo - pad) & (means <= hi + pad)).all(-1).float().mean()
         row = {"t": round(t, 6), "in_sight": round(float(inside), 4)}
         scores = []
         for c, f in views.items():
@@ -88,3 +91,7 @@ def long_horizon(
             f"{end_of_truth:.4g}; past that, renders only: nothing checks them"
         ),
     }
+
+
+def _moving(means: torch.Tensor, rows: torch.Tensor | None) -> torch.Tensor:
+    return means if rows is None or len(rows) == 0 else means[rows.to(means.device)]

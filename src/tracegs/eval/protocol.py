@@ -23,7 +23,7 @@ from ..config import apply_overrides
 from ..data.frames import camera_key
 from ..data.scene import Frame, available_splits, load_image, load_scene
 from ..extrapolate import gaussians_at
-from ..run import load_run
+from ..run import load_run, run_data
 from ..utils import atomic_write_image
 from .metrics import mae_psnr, mse, psnr, ssim
 
@@ -121,7 +121,7 @@ def evaluate_run(
     model, cfg, meta, state = loaded.model, loaded.config, loaded.meta, loaded.state
     if render_settings:
         model.cfg = cfg = apply_overrides(cfg, render_settings)
-    data = Path(data or cfg.data)
+    data = run_data(cfg, data)
     scene = load_scene(data, "train", cfg.downscale)
     t_end = cfg.t_train_end if cfg.t_train_end is not None else scene.t_train_end
     t_end = meta["t_max"] if t_end is None else t_end

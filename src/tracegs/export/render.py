@@ -12,7 +12,7 @@ from tqdm import tqdm
 from ..data.cameras import Camera, look_at_viewmat
 from ..data.scene import available_splits, load_scene
 from ..extrapolate import gaussians_at
-from ..run import load_run
+from ..run import load_run, run_data
 from ..utils import atomic_write_image
 
 
@@ -129,7 +129,7 @@ def render_command(
     loaded = load_run(run, device)
     model, cfg, state = loaded.model, loaded.config, loaded.state
     check_time(t_end if video else time, state.t_max, "--t-end" if video else "--time")
-    data = Path(data or cfg.data)
+    data = run_data(cfg, data)
     background = torch.tensor(load_scene(data, "train").background, device=model.aabb.device)
     if not video:
         cam = pick_camera(data, camera, cfg.downscale).to(model.aabb.device)

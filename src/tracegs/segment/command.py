@@ -23,7 +23,7 @@ from ..export.ply import write_gaussians
 from ..export.render import render_gaussians, sweep, write_video
 from ..extrapolate import gaussians_at
 from ..models.gaussians import rgb_to_sh0
-from ..run import load_run, load_tensors, save_tensors
+from ..run import load_run, load_tensors, run_data, save_tensors
 from ..utils import atomic_write_image, atomic_write_text
 from .cluster import Segmentation, segment
 from .config import SegmentConfig
@@ -61,7 +61,7 @@ def segment_run(
     started = time.perf_counter()
     loaded = load_run(run, device)
     model, state, cfg = loaded.model, loaded.state, loaded.config
-    data = Path(data or cfg.data)
+    data = run_data(cfg, data)
     features = motion_features(model, state, settings)
     seg = segment(features, settings, None if auto_k else k)
     seconds_segment = time.perf_counter() - started
