@@ -134,3 +134,34 @@ def test_off_nothing_changes():
     for t in (0.3, T_MAX, 1.2):
         a, b = gaussians_at(model, with_laws, t), gaussians_at(model, state, t)
         assert all(torch.equal(a[k], b[k]) for k in ("means", "quats", "scales"))
+
+
+def test_a_piece_on_the_same_hinge_moves_with_the_adopted_part_and_a_still_one_does_not():
+    """``carried_by``: a pendulum's rod, cut from its bob, joins the bob's joint; a piece that stays
+    put, or turns about another axis, joins none."""
+    from tracegs.extrapolate.joints import carried_by, fit_joint
+
+    times = np.linspace(0.0, T_MAX, 40)
+    q = torch.as_tensor(damped_pendulum(times))
+    gen = torch.Generator().manual_seed(4)
+    bob = (
+        0.05 * torch.randn(150, 3, generator=gen, dtype=torch.float64)
+        + PIVOT
+        + torch.tensor([0.0, -0.6, 0.0])
+    )
+    rod = PIVOT + torch.linspace(-0.1, -0.5, 60, dtype=torch.float64)[:, None] * torch.tensor([0.0, 1.0, 0.0])
+
+    def swung(x, angles, axis=AXIS, pivot=PIVOT):  # positions over the frames; x at the last one
+        at_end = rodrigues(-float(angles[-1]) * axis)
+        start = (x - pivot) @ at_end.T + pivot
+        return [(start - pivot) @ rodrigues(float(a) * axis).T + pivot for a in angles]
+
+    bob_path = swung(bob, q)
+    joint, q_bob, residuals = fit_joint(bob, bob_path)
+    assert joint["joint"] == "hinge" and residuals["hinge"] < 1e-4
+    part = {**joint}
+    settings = make_config("tiny").extrapolation
+    assert carried_by(rod, swung(rod, q), [part], [q_bob], settings) == 0
+    assert carried_by(rod, [rod] * len(times), [part], [q_bob], settings) is None  # still
+    other = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
+    assert carried_by(rod, swung(rod, q, other, PIVOT + 0.3), [part], [q_bob], settings) is None

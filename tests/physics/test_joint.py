@@ -59,3 +59,51 @@ def test_slider_direction_and_positions_recovered_and_shifted_back():
     R2, T2 = slider_transforms(slider, q)
     torch.testing.assert_close(R2, base_r, rtol=0, atol=1e-9)
     torch.testing.assert_close(T2, T, rtol=0, atol=1e-9)
+
+
+def test_a_bob_whose_shape_turns_less_than_its_arc_gets_its_angle_from_its_positions():
+    """A compact bob 0.9 below its pivot swings by q(t); its own shape is turned back by 15% of q about
+    its centre (what f_defo did on the pendulum scene): the rigid fits read 0.85 q, the positions q."""
+    from tracegs.physics.free_body import fit_rigid_transform
+    from tracegs.physics.joint import refine_hinge
+
+    torch.manual_seed(2)
+    axis, pivot = torch.tensor([0.0, 1.0, 0.0], dtype=DT), torch.tensor([0.0, 0.0, 0.52], dtype=DT)
+    bob = torch.tensor([0.0, 0.0, -0.4], dtype=DT) + 0.06 * torch.randn(300, 3, dtype=DT)
+    angles = 0.8 * torch.cos(5.0 * torch.linspace(0, 0.7, 42, dtype=DT)) - 0.6
+    path = []
+    for q in angles:
+        turn, back = rodrigues(q * axis), rodrigues(-0.15 * q * axis)
+        centre = turn @ (bob.mean(0) - pivot) + pivot
+        path.append(((bob - bob.mean(0)) @ (back @ turn).T) + centre)
+    path = torch.stack(path)
+    x0 = path[-1]
+    fits = [fit_rigid_transform(x0, p) for p in path]
+    R, T = torch.stack([r for r, _ in fits]), torch.stack([t for _, t in fits])
+    rigid, q_rigid = fit_hinge(R, T, centre=x0.mean(0))
+    truth = angles - angles[0]
+    assert float((q_rigid.abs().max() - truth.abs().max()).abs()) > 0.1  # the shape's 15% short
+    hinge, q = refine_hinge(x0, path, rigid)
+    sign = float(torch.sign(hinge.axis @ axis))
+    assert float((sign * q - truth).abs().max()) < 0.01  # 0.24 from the rigid fits
+    assert float((hinge.pivot - pivot)[[0, 2]].norm()) < 0.01  # (free along the axis)
+    R2, T2 = hinge_transforms(hinge, q)
+    carried = x0 @ R2.transpose(1, 2) + T2[:, None]
+    assert float((carried - path).norm(dim=-1).mean()) < 0.02
+
+
+def test_refine_hinge_keeps_an_exact_hinge():
+    from tracegs.physics.joint import refine_hinge
+
+    axis = torch.nn.functional.normalize(torch.tensor([0.3, -0.5, 0.8], dtype=DT), dim=0)
+    pivot = torch.tensor([0.2, 0.1, -0.4], dtype=DT)
+    pivot = pivot - (pivot @ axis) * axis
+    angles = torch.sin(torch.linspace(0, 3, 30, dtype=DT))
+    x0 = torch.randn(50, 3, dtype=DT, generator=torch.Generator().manual_seed(3))
+    R, T = hinge_motion(axis, pivot, angles - angles[-1], torch.eye(3, dtype=DT), torch.zeros(3, dtype=DT))
+    path = x0 @ R.transpose(1, 2) + T[:, None]
+    hinge, q = refine_hinge(x0, path, fit_hinge(R, T)[0])
+    torch.testing.assert_close(q, angles - angles[0], rtol=0, atol=1e-6)
+    torch.testing.assert_close(hinge.axis, axis, rtol=0, atol=1e-6)
+    R2, T2 = hinge_transforms(hinge, q)
+    torch.testing.assert_close(x0 @ R2.transpose(1, 2) + T2[:, None], path, rtol=0, atol=1e-6)

@@ -5,14 +5,18 @@ follow (a pendulum swinging back, a spring, a wheel braking to rest).
 
 For each rigid part of the moving Gaussians (``free_bodies.moving_groups``, split by ``split_rigid``;
 the free bodies' Gaussians left to them), f_defo's per-frame rigid transforms of the part from the
-handover t0 back to t = 0 give a hinge and a slider (``physics/joint.py``); the one that reproduces
+handover t0 back to t = 0 give a hinge (refitted to the positions) and a slider
+(``physics/joint.py``); the one that reproduces
 f_defo's positions better, within ``joint_fit_tolerance`` of the part's radius of its best rigid
 motion per frame, gives ``q`` [T].
 ``choose_law`` picks the law that best predicts the held-out end of ``q`` (``joint_law_holdout``). It is
 adopted when it is not ``constant``, is stable (no negative stiffness or damping: a passive joint),
 beats moving on at the last velocity there, and predicts the
 part's positions there no worse than ``joint_law_tolerance`` times the learned physics started at
-the same frame. Everything else keeps the learned physics, and the report says why. No images.
+the same frame. A piece left on no law that an adopted part's transforms carry along its path about
+as well as its own rigid motion does (``carried_by``: a pendulum's rod, cut from its bob by f_trd's
+velocities) moves with that part. Everything else keeps the learned physics, and the report says
+why. No images.
 
 N: Gaussians, M: a part's Gaussians, T: frames, P: a law's parameters.
 """
@@ -26,7 +30,15 @@ import torch
 
 from ..physics.force_law_fit import DEFAULT_LAWS, FittedLaw, choose_law
 from ..physics.free_body import fit_rigid_transform, split_rigid
-from ..physics.joint import Hinge, Slider, fit_hinge, fit_slider, hinge_transforms, slider_transforms
+from ..physics.joint import (
+    Hinge,
+    Slider,
+    fit_hinge,
+    fit_slider,
+    hinge_transforms,
+    refine_hinge,
+    slider_transforms,
+)
 from ..physics.so3 import quat_multiply, quat_normalize, rotmat_to_quat
 from .free_bodies import moving_groups
 from .future import handover_time, physics_from
@@ -72,7 +84,7 @@ def _rms(a: torch.Tensor, b: torch.Tensor) -> float:
 def fit_joint(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[dict | None, torch.Tensor | None, dict]:
     """``(joint, q [T], residuals)`` of the part whose means are ``x0`` [M, 3] at the handover and
     ``path`` [T] x [M, 3] at the frames: the hinge or the slider (``fit_hinge`` about the part's mean,
-    ``fit_slider``) whose transforms of ``q`` reproduce ``path`` with the smaller RMS residual, and
+    refitted to the positions by ``refine_hinge``; ``fit_slider``) whose transforms of ``q`` reproduce ``path`` with the smaller RMS residual, and
     ``residuals["rigid"]``, that of the best rigid transform of each frame. The
     residuals are relative to the part's radius (RMS distance from its mean at the handover); the
     joint is stored as plain tensors: ``{"joint": "hinge" | "slider", "axis"`` (the hinge's axis or
@@ -81,7 +93,7 @@ def fit_joint(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[dict | None, 
     truth = torch.stack([p.detach().double().cpu() for p in path])
     radius = max(float((x - x.mean(0)).square().sum(-1).mean().sqrt()), 1e-12)
     rotation, translation = part_transforms(x, [p for p in truth])
-    hinge, q_hinge = fit_hinge(rotation, translation, centre=x.mean(0))
+    hinge, q_hinge = refine_hinge(x, truth, fit_hinge(rotation, translation, centre=x.mean(0))[0])
     slider, q_slider = fit_slider(rotation, translation)
     candidates = {
         "hinge": (
@@ -147,7 +159,8 @@ def choose_part_law(
     """``(stored part or None, report)`` of the part ``rows`` [N] bool, whose means are ``x0`` [M, 3]
     at the handover ``times[-1]`` and ``path`` [T] x [M, 3] at the increasing ``times`` [T] (module
     docstring). The stored part is its joint (``fit_joint``, or ``fit`` when already made) with
-    ``law``, ``params`` [P] and the law's state ``q0``, ``v0`` at the handover."""
+    ``law``, ``params`` [P] and the law's state ``q0``, ``v0`` at the handover; an adopted part's
+    report also has its coordinate ``q`` [T] over the frames."""
     joint, q, residuals = fit if fit is not None else fit_joint(x0, path)
     entry: dict = {
         "gaussians": int(rows.sum()),
@@ -187,7 +200,7 @@ def choose_part_law(
         q0, v0 = (float(x[0]) for x in fitted.state_at([t[-1]]))
         part = {**joint, "law": fitted.name, "params": torch.tensor(fitted.params, dtype=torch.float64)}
         part.update(q0=q0, v0=v0, dt_max=fitted.dt_max)
-        return part, {**entry, "adopted": True, "why": "adopted"}
+        return part, {**entry, "adopted": True, "why": "adopted", "q": q}
     return None, {**entry, "why": why}
 
 
@@ -213,7 +226,7 @@ def choose_joint_laws(
     path = [model.deform(float(t))["means"] for t in times]
     learned = _LearnedBacktest(model, state)
     labels = torch.zeros(moved.shape[0], dtype=torch.long, device=moved.device)
-    parts, report = [], []
+    parts, report, paths, left = [], [], [], []
     for label in range(1, int(groups.max()) + 1):
         group = groups == label
         # a group on one joint is one part (its rigid split, from f_trd's velocities at the handover,
@@ -234,11 +247,39 @@ def choose_joint_laws(
                 continue
             x, part_path = x0[rows], [p[rows] for p in path]
             part, result = choose_part_law(x, part_path, times, rows, learned, settings, fit)
+            q = result.pop("q", None)  # (the adopted part's coordinate over the frames)
             report.append({**entry, **result})
             if part is not None:
                 parts.append(part)
+                paths.append(q)
                 labels[rows] = len(parts)
+            elif result.get("joint") is not None:
+                left.append((rows, len(report) - 1))
+    for rows, i in left:  # a piece of a part whose joint was adopted (a pendulum's rod, its bob) joins it
+        k = carried_by(x0[rows], [p[rows] for p in path], parts, paths, settings)
+        if k is not None:
+            labels[rows] = k + 1
+            report[i].update(adopted=True, why=f"moves with joint part {k + 1}: its law", joins=k + 1)
     return ({"t0": t0, "labels": labels, "parts": parts} if parts else None), report
+
+
+def carried_by(
+    x0: torch.Tensor, path: list[torch.Tensor], parts: list[dict], paths: list, settings
+) -> int | None:
+    """The index of the joint part among ``parts`` (with their coordinates ``paths`` [T] over the frames)
+    whose transforms carry the Gaussians ``x0`` [M, 3] along their ``path`` [T] x [M, 3] about as well
+    as their own best rigid motion per frame (``joint_fit_tolerance`` of their radius, as ``_fits``):
+    pieces of one rigid part that f_trd's velocities cut apart; None when no part does."""
+    x = x0.detach().double().cpu()
+    truth = torch.stack([p.detach().double().cpu() for p in path])
+    radius = max(float((x - x.mean(0)).square().sum(-1).mean().sqrt()), 1e-12)
+    rigid = _rms(_positions(x, *part_transforms(x, list(truth))), truth) / radius
+    best, best_residual = None, math.inf
+    for k, (part, q) in enumerate(zip(parts, paths, strict=True)):
+        residual = _rms(_positions(x, *joint_transforms(part, q)), truth) / radius
+        if residual <= min(rigid + settings.joint_fit_tolerance, best_residual):
+            best, best_residual = k, residual
+    return best
 
 
 def apply_joint_laws(
