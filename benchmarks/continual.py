@@ -5,7 +5,8 @@ RUNS/<scene>_<method>, or reads the table a finished one left (RUN/continual.jso
 writes a plot per scene (docs/figures/continual/<scene>.png) and, with --json, the record.
 
 Usage: .venv/bin/python benchmarks/continual.py SCENE_DIR [...] --runs RUNS [--window 0.15 --horizon 0.15]
-       [--frames] [--step S] [--train-flags "--dynamic-iterations 6000"] [--json docs/results/continual.json]
+       [--frames] [--step S] [--train-flags "--dynamic-iterations 6000"] [--methods trace defgs]
+       [--json docs/results/continual.json]
 """
 
 from __future__ import annotations
@@ -63,6 +64,7 @@ def main() -> None:
     ap.add_argument("--step", type=float, default=None)
     ap.add_argument("--frames", action="store_true")
     ap.add_argument("--train-flags", default="", help="more `tracegs train` flags, e.g. the preset")
+    ap.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     ap.add_argument("--json", type=Path)
     ap.add_argument("--figures", type=Path, default=Path("docs/figures/continual"))
     ap.add_argument(
@@ -75,7 +77,7 @@ def main() -> None:
     args = ap.parse_args()
     rows, windows = [], {}
     for scene in args.scenes:
-        tables = {m: run_one(scene, m, args.runs, args) for m in METHODS}
+        tables = {m: run_one(scene, m, args.runs, args) for m in args.methods}
         name = scene.name.split("_")[0]
         plot(name, tables, args.figures / f"{name}.png")
         for method, table in tables.items():
@@ -90,7 +92,7 @@ def main() -> None:
                          "psnr": round(avg["psnr"], 2), "ssim": round(avg["ssim"], 3),
                          "lpips": round(avg["lpips_vgg"], 3) if "lpips_vgg" in avg else None,
                          "wall s": round(table["wall_s"])})  # fmt: skip
-    for method in METHODS:
+    for method in args.methods:
         mine = [a for a in rows if a["method"] == LABEL[method] and a["scene"] != "all"]
         rows.append({"scene": "all", "method": LABEL[method], "rounds": sum(a["rounds"] for a in mine),
                      "psnr": round(sum(a["psnr"] for a in mine) / len(mine), 2),
@@ -105,6 +107,7 @@ def main() -> None:
             f" --step {args.step}" if args.step else ""
         )
         plan += " --frames" if args.frames else ""
+        plan += "" if list(args.methods) == list(METHODS) else f" --methods {' '.join(args.methods)}"
         command = (
             f"python benchmarks/continual.py {' '.join('DATA/' + s.name for s in args.scenes)} --runs RUNS {plan}"
             + (f" --train-flags {shlex.quote(args.train_flags)}" if args.train_flags else "")

@@ -1,11 +1,11 @@
-"""Extrapolation where the forces are not constant: TRACE, TRACE with joint laws
-(``extrapolation.joint_laws``) and DefGS on the five scenes of `tracegs synth` whose forces change
+"""Extrapolation where the forces are not constant: TRACE (`cpu-fast` as it ships, joint laws on), TRACE
+with the paper's extrapolation (``extrapolation.joint_laws`` off) and DefGS on the five scenes of `tracegs synth` whose forces change
 (pendulum, spring, brake, bounce, turntable), with the issue's targets beside the scores: the
 extrapolation MAE-PSNR within 3 dB of the run's interpolation, at least DefGS + 5 dB, and the moving
 parts' future trajectory error under 1% of the scene extent.
 
-The runs are `tracegs bench methods` runs (trained, or reused where they exist, in OUT/runs; the joint
-laws row reuses the TRACE training and is only calibrated and scored again).
+The runs are `tracegs bench methods` runs (trained, or reused where they exist, in OUT/runs; the
+paper-extrapolation row reuses the TRACE training and is only calibrated and scored again).
 
 Usage: .venv/bin/python benchmarks/nonconstant_forces.py [--out runs/bench] [--json docs/results/nonconstant-forces.json]
 """
@@ -24,7 +24,7 @@ from tracegs.data.scene import load_scene
 from tracegs.results import make_record, write_record
 
 SCENES = ("pendulum", "spring", "brake", "bounce", "turntable")
-VARIANTS = ("TRACE", "TRACE joint laws", "DefGS")
+VARIANTS = ("TRACE", "TRACE paper extrapolation", "DefGS")
 PRESET, RESOLUTION = "cpu-fast", 128
 
 
@@ -84,8 +84,8 @@ def main() -> None:
             "and the held-out cameras over the training span (interpolation). `traj_err_pct_extent`: the "
             "moving parts' largest mean future trajectory error, % of the scene extent. Targets (issue "
             "64): extrapolation >= interpolation - 3 dB, >= DefGS + 5 dB, trajectory error < 1%. TRACE and "
-            "DefGS trained side by side, one thread each; `TRACE joint laws` is the TRACE run calibrated "
-            "again with `extrapolation.joint_laws` (docs/PHYSICS.md)."
+            "DefGS trained side by side, one thread each; `TRACE` is `cpu-fast` as it ships, with the joint "
+            "laws (docs/PHYSICS.md); `TRACE paper extrapolation` the same training calibrated without them."
         )
         title = "Forces that are not constant (`cpu-fast`, 128 px)"
         write_record(a.json, make_record("nonconstant-forces", table, command, title=title, notes=notes))

@@ -35,6 +35,7 @@ METHODS = {
     "TRACE_4dgs": {"method": "trace", "deformation.kind": "hexplane"},
     "DefGS": {"method": "defgs"},
     "TRACE joint laws": {"method": "trace", "extrapolation.joint_laws": True},
+    "TRACE paper extrapolation": {"method": "trace", "extrapolation.joint_laws": False},
 }
 
 ABLATIONS = {

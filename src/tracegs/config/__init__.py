@@ -146,7 +146,7 @@ def cpu_fast() -> TrainConfig:
             detach_acceleration_features=True,
         ),
         stage2=Stage2Config(acceleration_consistency=0.01, consistency_frames=8.0, skip_static=True),
-        extrapolation=ExtrapolationConfig(free_bodies=True),
+        extrapolation=ExtrapolationConfig(free_bodies=True, joint_laws=True),
     )
 
 
@@ -173,6 +173,7 @@ def tiny() -> TrainConfig:
     cfg.init_points = 200
     # densifying every step without a budget grows to 10^5 Gaussians on a real scene in a few steps
     cfg.densify = DensifyConfig(refine_start=0, refine_every=1, reset_every=0, max_gaussians=20_000)
+    cfg.extrapolation.joint_laws = False  # (the tests that need them turn them on)
     return cfg
 
 

@@ -190,7 +190,8 @@ class ExtrapolationConfig:
     (``extrapolate/joints.py``). A law is adopted only where it is not ``constant`` and predicts the
     held-out end of that path better than moving on at the last velocity and no worse than
     ``joint_law_tolerance`` times the learned physics does; elsewhere the learned physics stays (the
-    paper's extrapolation) and the run summary says why. Off = the paper's extrapolation."""
+    paper's extrapolation) and the run summary says why. Off = the paper's extrapolation (``paper``);
+    on in ``cpu-fast`` and ``capture``."""
     joint_law_holdout: float = 0.25
     """Fraction of the part's frames at the end of its path up to the handover (at least one) that the
     laws are fitted without and scored on, to choose among them (``choose_law``) and to backtest the
