@@ -28,7 +28,7 @@ def run_one(scene: Path, method: str, runs: Path, args) -> dict:
     plan = [f"--window={args.window}", f"--horizon={args.horizon}"]
     plan += [f"--step={args.step}"] if args.step is not None else []
     plan += ["--frames"] if args.frames else []
-    if not (table.is_file() and _complete(table)):
+    if not (table.is_file() and _complete(table, scene, args)):
         command = [sys.executable, "-m", "tracegs", "train", "--continual", *plan, "--data", str(scene),
                    "--run", str(run), "--method", method, *shlex.split(args.train_flags)]  # fmt: skip
         print(" ".join(command), flush=True)
@@ -36,9 +36,14 @@ def run_one(scene: Path, method: str, runs: Path, args) -> dict:
     return json.loads(table.read_text())
 
 
-def _complete(path: Path) -> bool:
-    table = json.loads(path.read_text())
-    return bool(table["rounds"]) and table["rounds"][-1]["extrapolated_until"] >= 1.0 - 1e-6
+def _complete(path: Path, scene: Path, args) -> bool:
+    """Whether the table at ``path`` has every round of the plan (``continual.round_ends``)."""
+    from tracegs.continual import Continual, round_ends
+    from tracegs.data.scene import available_splits, load_scene
+
+    times = [f.time for split in available_splits(scene) for f in load_scene(scene, split).frames]
+    plan = Continual(args.window, args.horizon, args.step, args.frames)
+    return len(json.loads(path.read_text())["rounds"]) == len(round_ends(times, plan))
 
 
 def plot(scene: str, tables: dict[str, dict], out: Path) -> Path:

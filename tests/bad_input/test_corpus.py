@@ -372,14 +372,14 @@ RUN_CASES = [
         _config(lambda d: d.update(data="/nonexistent/scene")),
         ["eval"],
         "/nonexistent/scene",
-        "file not found",
+        "no scene here",
     ),
     (
         "eval --data of no scene",
         _nothing,
         ["eval", "--data", "/nonexistent/x"],
         "/nonexistent/x",
-        "file not found",
+        "no scene here",
     ),
     (
         "calibrate --handover-frames -1",
