@@ -22,7 +22,7 @@ import torch
 
 from ..data.cameras import Camera, focus_point
 from ..export.render import check_time
-from ..run import RunError, load_run, run_data
+from ..run import RunError, load_run
 from .camera import camera_from_view, pose_from_viewmat, vertical_fov
 from .scene import MOTIONS, DatasetCameras, dataset_cameras, find_segments, geometry_at, phase, render_view
 
@@ -294,7 +294,7 @@ def serve(
     if not (math.isfinite(t_end) and t_end > 0):
         raise RunError(f"--t-end {t_end}: the time slider's end must be a positive number")
     check_time(t_end, t_max, "--t-end")  # the limit every command renders to
-    cameras = dataset_cameras(run_data(loaded.config, data), loaded.config.downscale)
+    cameras = dataset_cameras(Path(data or loaded.config.data), loaded.config.downscale)
     import viser  # here: the other commands do not need the web server
 
     server = viser.ViserServer(host=host, port=int(port), label="tracegs", verbose=False)
