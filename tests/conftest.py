@@ -81,3 +81,53 @@ def randomised_model(cfg, n: int = 400):
 @pytest.fixture
 def tiny_scene(tmp_path) -> Path:
     return write_tiny_scene(tmp_path / "scene")
+
+
+def about(angle: float, pivot: torch.Tensor, axis=None) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(R, T)``: the turn by ``angle`` about the line through ``pivot`` along ``axis`` (default: the
+    joint tests' ``AXIS``)."""
+    from tracegs.physics.so3 import rodrigues
+
+    if axis is None:
+        axis = torch.nn.functional.normalize(torch.tensor([0.2, 0.1, 1.0], dtype=torch.float64), dim=0)
+    turn = rodrigues(angle * axis)
+    return turn, pivot - turn @ pivot
+
+
+def blob_model(centres: list[tuple], motions: list, joint_laws: bool = True):
+    """A model of blobs of Gaussians about ``centres`` (their means), one per entry, whose f_defo moves blob ``i`` by
+    the rigid transform ``motions[i](t)`` ``(R, T)`` (None: still); f_trd is zero (its physics holds
+    everything where the handover leaves it). Returns the model and each blob's rows."""
+    from tracegs.config import make_config
+    from tracegs.physics.so3 import quat_multiply, rotmat_to_quat
+
+    cfg = make_config("tiny", device="cpu")
+    dyn = cfg.extrapolation
+    dyn.hold_unseen = dyn.freeze_static = dyn.free_bodies = False
+    dyn.joint_laws = joint_laws
+    model = randomised_model(cfg)
+    with torch.no_grad():
+        for p in model.dynamics.parameters():
+            p.zero_()
+    g = model.gaussians
+    n = g["means"].shape[0]
+    blob = torch.arange(n) * len(centres) // n
+    rows = [blob == i for i in range(len(centres))]
+    noise = 0.08 * torch.randn(n, 3, generator=torch.Generator().manual_seed(0))
+    for part in rows:  # each blob's mean on its centre
+        noise[part] -= noise[part].mean(0)
+    with torch.no_grad():
+        g["means"].copy_(noise + torch.tensor(centres)[blob])
+
+    def deform(t: float) -> dict[str, torch.Tensor]:
+        means, quats = g["means"].detach().double().clone(), g["quats"].detach().clone()
+        for part, motion in zip(rows, motions, strict=True):
+            if motion is not None:
+                turn, shift = motion(t)
+                means[part] = means[part] @ turn.T + shift
+                q = rotmat_to_quat(turn).float()[None].expand(int(part.sum()), 4)
+                quats[part] = quat_multiply(q, quats[part])
+        return {"means": means.float(), "quats": quats, "scales": g["scales"].detach()}
+
+    model.deform = deform  # f_defo, the truth: exact
+    return model, rows

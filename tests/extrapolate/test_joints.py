@@ -8,12 +8,12 @@ import io
 import numpy as np
 import pytest
 import torch
-from tests.conftest import randomised_model
+from tests.conftest import about, blob_model
 
 from tracegs.config import make_config
 from tracegs.extrapolate import ExtrapolationState, calibrate, gaussians_at, handover_time
 from tracegs.physics.force_law import LAWS, integrate
-from tracegs.physics.so3 import quat_multiply, rodrigues, rotmat_to_quat
+from tracegs.physics.so3 import rodrigues
 
 AXIS = torch.nn.functional.normalize(torch.tensor([0.2, 0.1, 1.0], dtype=torch.float64), dim=0)
 PIVOT = torch.tensor([0.0, 0.6, 0.0], dtype=torch.float64)
@@ -31,39 +31,11 @@ def steady_turn(t: np.ndarray) -> np.ndarray:
 
 
 def _model(angle, joint_laws: bool = True):
-    """A model whose f_defo turns its first 200 Gaussians (a blob 0.5 below the hinge) about the hinge
-    by ``angle(t)``, the other 200 (a blob far from it) held still; f_trd is zero (its physics holds
-    everything where the handover leaves it). Returns the model and the turning part's rows."""
-    cfg = make_config("tiny", device="cpu")
-    dyn = cfg.extrapolation
-    dyn.hold_unseen = dyn.freeze_static = dyn.free_bodies = False
-    dyn.joint_laws = joint_laws
-    model = randomised_model(cfg)
-    with torch.no_grad():
-        for p in model.dynamics.parameters():
-            p.zero_()
-    g = model.gaussians
-    n = g["means"].shape[0]
-    part = torch.arange(n) < n // 2
-    blob = 0.08 * torch.randn(n, 3, generator=torch.Generator().manual_seed(0))
-    centres = torch.where(part[:, None], torch.tensor([0.0, 0.1, 0.0]), torch.tensor([0.0, -0.8, 0.0]))
-    with torch.no_grad():
-        g["means"].copy_(blob + centres)
-
-    def deform(t: float) -> dict[str, torch.Tensor]:
-        turn = rodrigues(float(angle(np.array([t]))[0]) * AXIS)
-        means = g["means"].detach().double()
-        turned = (means - PIVOT) @ turn.T + PIVOT
-        q = rotmat_to_quat(turn).float()[None].expand(n, 4)
-        quats = torch.where(part[:, None], quat_multiply(q, g["quats"].detach()), g["quats"].detach())
-        return {
-            "means": torch.where(part[:, None], turned, means).float(),
-            "quats": quats,
-            "scales": g["scales"].detach(),
-        }
-
-    model.deform = deform  # f_defo, the truth: exact
-    return model, part
+    """A blob 0.5 below the hinge turned about it by ``angle(t)``, and one far from it held still.
+    Returns the model and the turning part's rows."""
+    turning = lambda t: about(float(angle(np.array([t]))[0]), PIVOT)  # noqa: E731
+    model, rows = blob_model([(0.0, 0.1, 0.0), (0.0, -0.8, 0.0)], [turning, None], joint_laws)
+    return model, rows[0]
 
 
 def test_a_damped_pendulum_is_put_on_its_hinge_and_swings_on():
@@ -165,3 +137,39 @@ def test_a_piece_on_the_same_hinge_moves_with_the_adopted_part_and_a_still_one_d
     assert carried_by(rod, [rod] * len(times), [part], [q_bob], settings) is None  # still
     other = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
     assert carried_by(rod, swung(rod, q, other, PIVOT + 0.3), [part], [q_bob], settings) is None
+
+
+def test_a_part_spinning_on_a_turning_part_turns_on_its_joint_in_that_parts_frame():
+    """A box spinning (2.5 rad per unit t) about its own centre on a table that turns steadily (2.0)
+    about the hinge: on no hinge of its own in the world, it is put on one in the table's frame and
+    moves after the handover as the truth does; the table, turning steadily, keeps the learned
+    physics (zero here: it stays where the handover left it), its law moving only the box."""
+    centre = PIVOT + torch.tensor([0.8, 0.0, 0.0], dtype=torch.float64)
+
+    def box(t: float):
+        table, (own, own_shift) = about(2.0 * t, PIVOT), about(2.5 * t, centre)
+        return table[0] @ own, table[0] @ own_shift + table[1]
+
+    motions = [lambda t: about(2.0 * t, PIVOT), box, None]
+    model, (table, spinning, still) = blob_model(
+        [(0.0, 0.1, 0.0), tuple(centre.tolist()), (0.0, -0.8, 0.0)], motions
+    )
+    state = calibrate(model, T_MAX, extent=2.0)
+    by_rows = {e["gaussians"]: e for e in state.report["joint_laws"]}
+    assert len(by_rows) == 2
+    disc, part = by_rows[int(table.sum())], by_rows[int(spinning.sum())]
+    assert disc["law"] == "constant" and not disc["adopted"] and disc["frame_of"] == [2]
+    assert part["adopted"] and part["on"] == 1 and part["joint"] == "hinge" and part["law"] == "constant"
+    assert part["position_rms"]["law"] < 0.01 * part["position_rms"]["learned"]
+    assert torch.equal(state.joint_laws["labels"], spinning.long() * 2)
+    t0 = handover_time(model, T_MAX)
+    start = model.deform(t0)["means"]
+    for t in (T_MAX, 1.0, 1.25):
+        got, want = gaussians_at(model, state, t), model.deform(t)
+        error = float((got["means"][spinning] - want["means"][spinning]).norm(dim=1).max())
+        assert error < 2e-3, (t, error)
+        alike = (got["quats"][spinning] * torch.nn.functional.normalize(want["quats"][spinning], dim=1)).sum(
+            1
+        )
+        assert float(alike.abs().min()) > 1 - 1e-5  # the same turn (q and -q are one)
+        torch.testing.assert_close(got["means"][table | still], start[table | still])

@@ -190,8 +190,11 @@ class ExtrapolationConfig:
     (``extrapolate/joints.py``). A law is adopted only where it is not ``constant`` and predicts the
     held-out end of that path better than moving on at the last velocity and no worse than
     ``joint_law_tolerance`` times the learned physics does; elsewhere the learned physics stays (the
-    paper's extrapolation) and the run summary says why. Off = the paper's extrapolation (``paper``);
-    on in ``cpu-fast`` and ``capture``."""
+    paper's extrapolation) and the run summary says why. A part that turns on a joint of its own on
+    such a part (a box spinning on a turntable) is put on that joint in the carrier's frame, and a
+    moving group that bounces on a floor within the span on the ``bounce`` law (``thrown.py``), each
+    under the same backtest. Off = the paper's extrapolation (``paper``); on in ``cpu-fast`` and
+    ``capture``."""
     joint_law_holdout: float = 0.25
     """Fraction of the part's frames at the end of its path up to the handover (at least one) that the
     laws are fitted without and scored on, to choose among them (``choose_law``) and to backtest the

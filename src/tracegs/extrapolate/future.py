@@ -15,6 +15,7 @@ import torch
 from ..physics.free_body import apply_free_bodies
 from ..physics.integrate import num_substeps, step
 from ..physics.so3 import quat_normalize
+from .joint_motion import apply_joint_laws
 from .state import ExtrapolationState
 from .still import moving_after_handover
 from .surface import SurfacePainters
@@ -77,8 +78,6 @@ def with_joint_laws(
         return gaussians
     if not _chosen_here(joints, t0, gaussians["means"].shape[0]):
         return gaussians
-    from .joints import apply_joint_laws  # joints.py builds on this module
-
     return apply_joint_laws(gaussians, start, joints, t)
 
 

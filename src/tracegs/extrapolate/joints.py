@@ -15,7 +15,11 @@ beats moving on at the last velocity there, and predicts the
 part's positions there no worse than ``joint_law_tolerance`` times the learned physics started at
 the same frame. A piece left on no law that an adopted part's transforms carry along its path about
 as well as its own rigid motion does (``carried_by``: a pendulum's rod, cut from its bob by f_trd's
-velocities) moves with that part. Everything else keeps the learned physics, and the report says
+velocities) moves with that part. A piece that turns on a joint of its own in the frame of a part
+with a law, adopted or not (``on_frame``: a box spinning on a turntable), is put on that joint, its
+law chosen and backtested as above with the carrier's law carrying it; a carrier whose law is not
+adopted moves only the part it carries. A moving group on no joint that bounces on a floor within
+the span is a thrown part (``thrown.py``). Everything else keeps the learned physics, and the report says
 why. No images.
 
 N: Gaussians, M: a part's Gaussians, T: frames, P: a law's parameters.
@@ -28,21 +32,18 @@ import math
 import numpy as np
 import torch
 
-from ..physics.force_law_fit import DEFAULT_LAWS, FittedLaw, choose_law
+from ..physics.force_law_fit import DEFAULT_LAWS, choose_law
 from ..physics.free_body import fit_rigid_transform, split_rigid
 from ..physics.joint import (
-    Hinge,
-    Slider,
     fit_hinge,
     fit_slider,
-    hinge_transforms,
     refine_hinge,
-    slider_transforms,
 )
-from ..physics.so3 import quat_multiply, quat_normalize, rotmat_to_quat
 from .free_bodies import moving_groups
 from .future import handover_time, physics_from
+from .joint_motion import joint_transforms
 from .state import ExtrapolationState
+from .thrown import choose_thrown
 
 MIN_FRAMES = 8
 """Fewest frames of f_defo's path up to the handover that a joint law is identified from."""
@@ -60,16 +61,6 @@ def part_transforms(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[torch.T
     means ``x0`` [M, 3] at the handover to each of their means ``path`` [T] x [M, 3] (Kabsch)."""
     fits = [fit_rigid_transform(x0, x) for x in path]
     return torch.stack([r for r, _ in fits]), torch.stack([t for _, t in fits])
-
-
-def joint_transforms(joint: dict, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(R [T, 3, 3], T [T, 3])`` of the stored ``joint`` (``fit_joint``) at the coordinates ``q`` [T]."""
-    q = torch.as_tensor(q, dtype=torch.float64).reshape(-1)
-    if joint["joint"] == "hinge":
-        hinge = Hinge(joint["axis"], joint["pivot"], joint["base_rotation"], joint["base_translation"])
-        return hinge_transforms(hinge, q)
-    slider = Slider(joint["axis"], joint["base_rotation"], joint["base_translation"])
-    return slider_transforms(slider, q)
 
 
 def _positions(x0: torch.Tensor, rotation: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
@@ -155,12 +146,20 @@ def choose_part_law(
     learned: _LearnedBacktest,
     settings,
     fit: tuple | None = None,
+    frame: tuple | None = None,
 ) -> tuple[dict | None, dict]:
     """``(stored part or None, report)`` of the part ``rows`` [N] bool, whose means are ``x0`` [M, 3]
     at the handover ``times[-1]`` and ``path`` [T] x [M, 3] at the increasing ``times`` [T] (module
     docstring). The stored part is its joint (``fit_joint``, or ``fit`` when already made) with
-    ``law``, ``params`` [P] and the law's state ``q0``, ``v0`` at the handover; an adopted part's
-    report also has its coordinate ``q`` [T] over the frames."""
+    ``law``, ``params`` [P] and the law's state ``q0``, ``v0`` at the handover. With ``frame``
+    ``(R [H, 3, 3], T [H, 3], world [H, M, 3])``, ``x0`` and ``path`` are in a carrying part's frame
+    and the held-out frames are scored in the world: the carrier's predicted transforms on them, and
+    the part's means there; there a ``constant`` law may be adopted too, and no law need beat moving on
+    at the last joint velocity (on a turning part, a steady turn or moving on is a path that the
+    learned physics' accelerations, held, cannot keep bending: the learned physics is what it must
+    beat). A report whose law was fitted also has ``"_frame"``: the part (adopted or
+    not) with its coordinate ``q`` [T] over the frames and its predicted transforms on the held-out ones,
+    for a part it may carry (``on_frame``)."""
     joint, q, residuals = fit if fit is not None else fit_joint(x0, path)
     entry: dict = {
         "gaussians": int(rows.sum()),
@@ -178,7 +177,10 @@ def choose_part_law(
     # the learned physics started at the last of those frames
     before, n = choice.held_out_fit, choice.fitted_samples
     truth = torch.stack([p.detach().double().cpu() for p in path[n:]])
-    law_means = _positions(x0, *joint_transforms(joint, before.predict(t[n:])))
+    held = joint_transforms(joint, before.predict(t[n:]))
+    law_means = _positions(x0, *held)
+    if frame is not None:  # a carried part: its frame's predicted motion, then its own, in the world
+        law_means, truth = law_means @ frame[0].transpose(1, 2) + frame[1][:, None], frame[2]
     learned_means = learned.means(float(t[n - 1]), [float(s) for s in t[n:]])[:, rows.cpu()]
     entry.update(
         law=fitted.name,
@@ -188,19 +190,20 @@ def choose_part_law(
         held_out_frames=len(t) - n,
         position_rms={"law": _rms(law_means, truth), "learned": _rms(learned_means, truth)},
     )
-    if fitted.name == "constant":
+    q0, v0 = (float(x[0]) for x in fitted.state_at([t[-1]]))
+    part = {**joint, "law": fitted.name, "params": torch.tensor(fitted.params, dtype=torch.float64)}
+    part.update(q0=q0, v0=v0, dt_max=fitted.dt_max, parent=None)
+    entry["_frame"] = {"part": part, "q": q, "held": held}
+    if fitted.name == "constant" and frame is None:  # (on a turning part, a constant turn still bends)
         why = "constant: the learned physics"
     elif min(fitted.constants.get("k", 0.0), fitted.constants.get("c", 0.0)) < 0:
         why = "unstable (a negative stiffness or damping grows without bound): the learned physics"
-    elif not choice.backtest.law_rms < choice.backtest.baseline_rms:
+    elif frame is None and not choice.backtest.law_rms < choice.backtest.baseline_rms:
         why = "no better than moving on at the last velocity: the learned physics"
     elif not entry["position_rms"]["law"] < settings.joint_law_tolerance * entry["position_rms"]["learned"]:
         why = "the learned physics predicts the held-out frames as well: the learned physics"
     else:
-        q0, v0 = (float(x[0]) for x in fitted.state_at([t[-1]]))
-        part = {**joint, "law": fitted.name, "params": torch.tensor(fitted.params, dtype=torch.float64)}
-        part.update(q0=q0, v0=v0, dt_max=fitted.dt_max)
-        return part, {**entry, "adopted": True, "why": "adopted", "q": q}
+        return part, {**entry, "adopted": True, "why": "adopted"}
     return None, {**entry, "why": why}
 
 
@@ -226,7 +229,7 @@ def choose_joint_laws(
     path = [model.deform(float(t))["means"] for t in times]
     learned = _LearnedBacktest(model, state)
     labels = torch.zeros(moved.shape[0], dtype=torch.long, device=moved.device)
-    parts, report, paths, left = [], [], [], []
+    parts, report, paths, left, frames, thrown = [], [], [], [], [], []
     for label in range(1, int(groups.max()) + 1):
         group = groups == label
         # a group on one joint is one part (its rigid split, from f_trd's velocities at the handover,
@@ -235,6 +238,12 @@ def choose_joint_laws(
         fit = fit_joint(x0[whole], [p[whole] for p in path]) if int(whole.sum()) >= MIN_GAUSSIANS else None
         pieces = [(group, fit)]
         if fit is None or fit[0] is None or not _fits(fit[0], fit[2], settings):
+            if int(whole.sum()) >= MIN_GAUSSIANS:  # a ball that bounces: the whole group on a floor
+                part, result = choose_thrown([p[whole] for p in path], times, whole, learned, settings)
+                report.append({"group": label, "free_body": int((group & free).sum()), **result})
+                if part is not None:
+                    thrown.append((whole, part))
+                    continue
             split = split_rigid(x0[group], u[group], 0.0025 * extent).to(moved.device)
             pieces = [
                 (group.clone().index_put_((group,), split == k), None) for k in range(1, int(split.max()) + 1)
@@ -247,19 +256,40 @@ def choose_joint_laws(
                 continue
             x, part_path = x0[rows], [p[rows] for p in path]
             part, result = choose_part_law(x, part_path, times, rows, learned, settings, fit)
-            q = result.pop("q", None)  # (the adopted part's coordinate over the frames)
+            frame = result.pop("_frame", None)  # (its law, adopted or not, as a frame for another part)
             report.append({**entry, **result})
+            if frame is not None:
+                frames.append({**frame, "report": len(report) - 1, "index": None})
             if part is not None:
                 parts.append(part)
-                paths.append(q)
-                labels[rows] = len(parts)
+                paths.append(frame["q"])
+                labels[rows] = frames[-1]["index"] = len(parts)
             elif result.get("joint") is not None:
                 left.append((rows, len(report) - 1))
+    turning = []
     for rows, i in left:  # a piece of a part whose joint was adopted (a pendulum's rod, its bob) joins it
         k = carried_by(x0[rows], [p[rows] for p in path], parts, paths, settings)
         if k is not None:
             labels[rows] = k + 1
             report[i].update(adopted=True, why=f"moves with joint part {k + 1}: its law", joins=k + 1)
+        else:
+            turning.append((rows, i))
+    for rows, i in turning:  # a part on a joint of its own on a turning part (a box on a turntable)
+        found = on_frame([p[rows] for p in path], times, rows, learned, settings, frames, i)
+        if found is None:
+            continue
+        part, result, frame = found
+        if frame["index"] is None:  # the carrier's law moves the part, not the carrier's own Gaussians
+            parts.append(frame["part"])
+            frame["index"] = len(parts)
+        parts.append({**part, "parent": frame["index"] - 1})
+        labels[rows] = len(parts)
+        report[frame["report"]].setdefault("frame_of", []).append(len(parts))
+        why = f"on a joint of its own on joint part {frame['index']}: their laws"
+        report[i].update({**result, "adopted": True, "why": why, "on": frame["index"]})
+    for rows, part in thrown:
+        parts.append(part)
+        labels[rows] = len(parts)
     return ({"t0": t0, "labels": labels, "parts": parts} if parts else None), report
 
 
@@ -282,24 +312,34 @@ def carried_by(
     return best
 
 
-def apply_joint_laws(
-    gaussians: dict[str, torch.Tensor], start: dict[str, torch.Tensor], joints: dict, t: float
-) -> dict[str, torch.Tensor]:
-    """``gaussians`` with each joint part's Gaussians moved rigidly from their ``start`` (f_defo's state
-    at the handover ``joints["t0"]``) to ``t``: its law integrated from ``(q0, v0)`` to ``q(t)``, and
-    the joint's transform at ``q(t)`` relative to its transform at ``q0``."""
-    means, quats = gaussians["means"].clone(), quat_normalize(gaussians["quats"]).clone()
-    labels = joints["labels"].to(means.device)
-    for k, part in enumerate(joints["parts"]):
-        rows = labels == k + 1
-        params = tuple(float(p) for p in part["params"])
-        law = FittedLaw(part["law"], params, joints["t0"], part["q0"], part["v0"], 0.0, part["dt_max"])
-        q = law.integrate_from(part["q0"], part["v0"], joints["t0"], [t])[0]
-        rotation, translation = joint_transforms(part, torch.cat([q.new_tensor([part["q0"]]), q]))
-        turn = rotation[1] @ rotation[0].T
-        shift = translation[1] - turn @ translation[0]
-        x = start["means"][rows]
-        means[rows] = (x.double() @ turn.to(x.device).T + shift.to(x.device)).to(x.dtype)
-        q_turn = rotmat_to_quat(turn).to(dtype=quats.dtype, device=x.device)[None].expand(int(rows.sum()), 4)
-        quats[rows] = quat_multiply(q_turn, quat_normalize(start["quats"][rows]))
-    return {**gaussians, "means": means, "quats": quats}
+def on_frame(
+    path: list[torch.Tensor], times: list[float], rows, learned, settings, frames: list[dict], me: int
+) -> tuple[dict, dict, dict] | None:
+    """``(part, report, frame)`` of the Gaussians ``rows``, on their ``path`` [T] x [M, 3] (the handover
+    last), as a part on a joint of its own in the frame of one of the parts with a law (``frames``:
+    ``choose_part_law``'s ``"_frame"`` with its ``"report"`` index; not the report ``me``): their path
+    in that part's frame (its joint's transforms of its coordinate) put on a joint (``fit_joint``,
+    ``_fits``) and its law chosen and backtested as ``choose_part_law`` does, the carrier's predicted
+    motion and the part's composed on the held-out frames. The frame whose law predicts them best
+    there, of those adopted; None when none is."""
+    truth = torch.stack([p.detach().double().cpu() for p in path])
+    best = None
+    for frame in frames:
+        if frame["report"] == me:
+            continue
+        rotation, translation = joint_transforms(frame["part"], frame["q"])
+        relative = (truth - translation[:, None]) @ rotation  # R^T (x - T), row vectors
+        fit = fit_joint(relative[-1], list(relative))
+        if fit[0] is None or not _fits(fit[0], fit[2], settings):
+            continue
+        held = frame["held"]
+        seen = (*held, truth[-held[0].shape[0] :])
+        part, result = choose_part_law(
+            relative[-1], list(relative), times, rows, learned, settings, fit, seen
+        )
+        result.pop("_frame", None)
+        if part is not None and (
+            best is None or result["position_rms"]["law"] < best[1]["position_rms"]["law"]
+        ):
+            best = (part, result, frame)
+    return best

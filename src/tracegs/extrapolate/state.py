@@ -39,8 +39,11 @@ class ExtrapolationState:
     per part: "joint" ("hinge" or "slider"), "axis" [3] (the hinge's axis or the rail's direction),
     "pivot" [3] (zeros on a rail), "base_rotation" [3, 3], "base_translation" [3] (float64,
     ``physics/joint.py``), "law" (a ``force_law.LAWS`` name), "params" [P] float64, "q0", "v0" (the
-    law's state at t0), "dt_max" (its integration step)]}`` (``extrapolate/joints.py``); None: none
-    adopted, or not looked for (``extrapolation.joint_laws``)."""
+    law's state at t0), "dt_max" (its integration step), "parent" (None, or the index of
+    the part in whose frame it turns; absent, None, in states saved before turning parts); a thrown
+    part (``"joint": "thrown"``, ``extrapolate/thrown.py``) has instead "axis" (up), "pivot" (its
+    centre at t0), "velocity" [3] (its drift along the floor) and "spin" [3]]}``
+    (``extrapolate/joints.py``); None: none adopted, or not looked for (``extrapolation.joint_laws``)."""
     report: dict = field(default_factory=dict)
     """What the choices were made from, for ``summary.json``: ``freeze_psnr`` {threshold: training-view
     PSNR}, ``free_bodies`` [one entry per part backtested], ``joint_laws`` [one entry per part tried]."""

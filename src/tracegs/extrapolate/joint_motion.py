@@ -1,0 +1,68 @@
+"""Joint parts after the handover: the rigid motion of each part that ``joints.py`` put on a law
+(a hinge or a rail, a part turning on another's joint, a thrown part), from its integrated coordinate,
+and the Gaussians moved by it."""
+
+from __future__ import annotations
+
+import torch
+
+from ..physics.force_law_fit import FittedLaw
+from ..physics.joint import Hinge, Slider, hinge_transforms, slider_transforms
+from ..physics.so3 import quat_multiply, quat_normalize, rotmat_to_quat
+from .thrown import thrown_motion
+
+
+def joint_transforms(joint: dict, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(R [T, 3, 3], T [T, 3])`` of the stored ``joint`` (``fit_joint``) at the coordinates ``q`` [T]."""
+    q = torch.as_tensor(q, dtype=torch.float64).reshape(-1)
+    if joint["joint"] == "hinge":
+        hinge = Hinge(joint["axis"], joint["pivot"], joint["base_rotation"], joint["base_translation"])
+        return hinge_transforms(hinge, q)
+    slider = Slider(joint["axis"], joint["base_rotation"], joint["base_translation"])
+    return slider_transforms(slider, q)
+
+
+def _ends(part: dict, t0: float, t: float) -> tuple[torch.Tensor, ...]:
+    """``(R0, T0, R1, T1)``: a part's joint transforms at its law's state at ``t0`` and at ``t``."""
+    params = tuple(float(p) for p in part["params"])
+    law = FittedLaw(part["law"], params, t0, part["q0"], part["v0"], 0.0, part["dt_max"])
+    q = law.integrate_from(part["q0"], part["v0"], t0, [t])[0]
+    rotation, translation = joint_transforms(part, torch.cat([q.new_tensor([part["q0"]]), q]))
+    return rotation[0], translation[0], rotation[1], translation[1]
+
+
+def part_motion(parts: list[dict], k: int, t0: float, t: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(turn [3, 3], shift [3])``: the rigid motion of joint part ``k`` of ``parts`` from ``t0`` to
+    ``t``, ``x -> turn x + shift``. A part with a ``parent`` (``on_frame``) turns on its joint in the
+    parent's frame: ``A_p(t) C(t) A_p(t0)^-1``, ``A_p`` the parent's joint transform and ``C`` the
+    part's own motion there."""
+    if parts[k]["joint"] == "thrown":
+        return thrown_motion(parts[k], t0, t)
+    r0, s0, r1, s1 = _ends(parts[k], t0, t)
+    turn = r1 @ r0.T
+    shift = s1 - turn @ s0
+    parent = parts[k].get("parent")
+    if parent is None:
+        return turn, shift
+    p0, u0, p1, u1 = _ends(parts[parent], t0, t)
+    return p1 @ turn @ p0.T, p1 @ (shift - turn @ p0.T @ u0) + u1
+
+
+def apply_joint_laws(
+    gaussians: dict[str, torch.Tensor], start: dict[str, torch.Tensor], joints: dict, t: float
+) -> dict[str, torch.Tensor]:
+    """``gaussians`` with each joint part's Gaussians moved rigidly from their ``start`` (f_defo's state
+    at the handover ``joints["t0"]``) to ``t``: its law integrated from ``(q0, v0)`` to ``q(t)``, and
+    the joint's transform at ``q(t)`` relative to its transform at ``q0``."""
+    means, quats = gaussians["means"].clone(), quat_normalize(gaussians["quats"]).clone()
+    labels = joints["labels"].to(means.device)
+    for k in range(len(joints["parts"])):
+        rows = labels == k + 1
+        if not bool(rows.any()):  # a turning part's frame only (``on_frame``)
+            continue
+        turn, shift = part_motion(joints["parts"], k, joints["t0"], t)
+        x = start["means"][rows]
+        means[rows] = (x.double() @ turn.to(x.device).T + shift.to(x.device)).to(x.dtype)
+        q_turn = rotmat_to_quat(turn).to(dtype=quats.dtype, device=x.device)[None].expand(int(rows.sum()), 4)
+        quats[rows] = quat_multiply(q_turn, quat_normalize(start["quats"][rows]))
+    return {**gaussians, "means": means, "quats": quats}
