@@ -7,7 +7,12 @@ parts' future trajectory error under 1% of the scene extent.
 The runs are `tracegs bench methods` runs (trained, or reused where they exist, in OUT/runs; the
 paper-extrapolation row reuses the TRACE training and is only calibrated and scored again).
 
+With ``--scenes`` or ``--variants`` only those rows are measured again; the other rows of an
+existing ``--json`` record are kept as they were, each with the commit it was measured at (and its
+DefGS row still scores the new ones against DefGS).
+
 Usage: .venv/bin/python benchmarks/nonconstant_forces.py [--out runs/bench] [--json docs/results/nonconstant-forces.json]
+    [--scenes bounce turntable] [--variants TRACE "TRACE paper extrapolation"]
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ import torch
 from tracegs.bench import METHODS, run_variant_table, scene_folder
 from tracegs.data.cameras import scene_extent_from_cameras
 from tracegs.data.scene import load_scene
-from tracegs.results import make_record, write_record
+from tracegs.results import current_commit, make_record, read_record, write_record
 
 SCENES = ("pendulum", "spring", "brake", "bounce", "turntable")
 VARIANTS = ("TRACE", "TRACE paper extrapolation", "DefGS")
@@ -41,20 +46,29 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/bench"))
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--report-only", action="store_true", help="train nothing; tabulate finished runs")
+    parser.add_argument("--scenes", nargs="+", default=list(SCENES), choices=SCENES)
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
     a = parser.parse_args()
-    variants = {k: METHODS[k] for k in VARIANTS}
+    variants = {k: METHODS[k] for k in a.variants}
     rows = run_variant_table(
-        "nonconstant-forces", variants, a.out, SCENES, PRESET, RESOLUTION, train=not a.report_only
+        "nonconstant-forces", variants, a.out, tuple(a.scenes), PRESET, RESOLUTION, train=not a.report_only
     )
+    kept = {}  # the rows of the existing record that are not measured again
+    earlier = ""
+    if a.json is not None and a.json.exists():
+        record = read_record(a.json)
+        kept = {(r["scene"], r["variant"]): {"commit": record["commit"], **r} for r in record["rows"]}
+        earlier = f" Rows at {record['commit']}: {record['machine']}."
     by_scene: dict[str, dict[str, dict]] = {}
     for row in rows:
         by_scene.setdefault(row["scene"], {})[row["variant"]] = row
+        kept.pop((row["scene"], row["variant"]), None)
     table = []
     for scene, found in by_scene.items():
         data = scene_folder(a.out, scene, RESOLUTION, synthesize_missing=False)
         cams = torch.stack([f.camera.center for f in load_scene(data, "train").frames])
         extent = scene_extent_from_cameras(cams)
-        defgs = found.get("DefGS", {}).get("extrap_psnr")
+        defgs = found.get("DefGS", kept.get((scene, "DefGS"), {})).get("extrap_psnr")
         for variant, row in found.items():
             run = a.out / "runs" / f"{scene}_{variant.replace(' ', '_')}_{PRESET}"
             interp, extrap = row["interp_psnr"], row["extrap_psnr"]
@@ -74,8 +88,11 @@ def main() -> None:
                     and extrap >= interp - 3
                     and extrap >= defgs + 5
                     and traj < 1.0,
+                    "commit": current_commit(),
                 }
             )
+    order = {(s, v): i for i, (s, v) in enumerate((s, v) for s in SCENES for v in VARIANTS)}
+    table = sorted([*table, *kept.values()], key=lambda r: order.get((r["scene"], r["variant"]), len(order)))
     print(json.dumps(table, indent=2))
     if a.json is not None and table:
         command = f".venv/bin/python benchmarks/nonconstant_forces.py --json {a.json}"
@@ -87,6 +104,8 @@ def main() -> None:
             "DefGS trained side by side, one thread each; `TRACE` is `cpu-fast` as it ships, with the joint "
             "laws (docs/PHYSICS.md); `TRACE paper extrapolation` the same training calibrated without them."
         )
+        if kept:
+            notes += earlier
         title = "Forces that are not constant (`cpu-fast`, 128 px)"
         write_record(a.json, make_record("nonconstant-forces", table, command, title=title, notes=notes))
 
