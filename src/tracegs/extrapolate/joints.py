@@ -18,8 +18,8 @@ as well as its own rigid motion does (``carried_by``: a pendulum's rod, cut from
 velocities) moves with that part. A piece that turns on a joint of its own in the frame of a part
 with a law, adopted or not (``on_frame``: a box spinning on a turntable), is put on that joint, its
 law chosen and backtested as above with the carrier's law carrying it; a carrier whose law is not
-adopted moves only the part it carries. A moving group on no joint that bounces on a floor within
-the span is a thrown part (``thrown.py``). Everything else keeps the learned physics, and the report says
+adopted moves only the part it carries. A moving group none of whose pieces is on a joint and that
+bounces on a floor within the span is a thrown part (``thrown.py``). Everything else keeps the learned physics, and the report says
 why. No images.
 
 N: Gaussians, M: a part's Gaussians, T: frames, P: a law's parameters.
@@ -238,12 +238,8 @@ def choose_joint_laws(
         fit = fit_joint(x0[whole], [p[whole] for p in path]) if int(whole.sum()) >= MIN_GAUSSIANS else None
         pieces = [(group, fit)]
         if fit is None or fit[0] is None or not _fits(fit[0], fit[2], settings):
-            if int(whole.sum()) >= MIN_GAUSSIANS:  # a ball that bounces: the whole group on a floor
-                part, result = choose_thrown([p[whole] for p in path], times, whole, learned, settings)
-                report.append({"group": label, "free_body": int((group & free).sum()), **result})
-                if part is not None:
-                    thrown.append((whole, part))
-                    continue
+            if int(whole.sum()) >= MIN_GAUSSIANS:
+                thrown.append((label, whole))
             split = split_rigid(x0[group], u[group], 0.0025 * extent).to(moved.device)
             pieces = [
                 (group.clone().index_put_((group,), split == k), None) for k in range(1, int(split.max()) + 1)
@@ -287,9 +283,14 @@ def choose_joint_laws(
         report[frame["report"]].setdefault("frame_of", []).append(len(parts))
         why = f"on a joint of its own on joint part {frame['index']}: their laws"
         report[i].update({**result, "adopted": True, "why": why, "on": frame["index"]})
-    for rows, part in thrown:
-        parts.append(part)
-        labels[rows] = len(parts)
+    for label, rows in thrown:  # a group none of whose pieces is on a joint, a ball: on a floor?
+        if bool((labels[rows] > 0).any()):
+            continue
+        part, result = choose_thrown([p[rows] for p in path], times, rows, learned, settings)
+        report.append({"group": label, "free_body": int(((groups == label) & free).sum()), **result})
+        if part is not None:
+            parts.append(part)
+            labels[rows] = len(parts)
     return ({"t0": t0, "labels": labels, "parts": parts} if parts else None), report
 
 

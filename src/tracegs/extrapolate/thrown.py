@@ -31,7 +31,7 @@ MIN_BOUNCES_FRAMES = 3
 """Fewest frames after the first contact (of those fitted) for the restitution to be identified."""
 ONE_DIRECTION = 0.2
 """Largest ratio of the second to the first principal spread of the centre's departure from its line
-for a fall along one direction (a ball bouncing on the scene's floor: 0.01)."""
+for a fall along one direction (``bounce``'s ball: 0.03; a part going round a circle: about 1)."""
 CONTACT_FRAMES = 3
 """Frames on each side of a contact that the law is refitted without (``refit_bounce``): f_defo, smooth
 in time, rounds the kink of a bounce (``bounce``: its ball's centre stops 0.10 of a 0.45 drop above
