@@ -264,7 +264,9 @@ def choose_joint_laws(
                 left.append((rows, len(report) - 1))
     turning = []
     for rows, i in left:  # a piece of a part whose joint was adopted (a pendulum's rod, its bob) joins it
-        k = carried_by(x0[rows], [p[rows] for p in path], parts, paths, settings)
+        known = {"radius": report[i]["radius"], "rigid": report[i]["residual"]["rigid"]}
+        known = None if known["rigid"] is None else known  # (not finite: computed again)
+        k = carried_by(x0[rows], [p[rows] for p in path], parts, paths, settings, known)
         if k is not None:
             labels[rows] = k + 1
             report[i].update(adopted=True, why=f"moves with joint part {k + 1}: its law", joins=k + 1)
@@ -295,16 +297,25 @@ def choose_joint_laws(
 
 
 def carried_by(
-    x0: torch.Tensor, path: list[torch.Tensor], parts: list[dict], paths: list, settings
+    x0: torch.Tensor,
+    path: list[torch.Tensor],
+    parts: list[dict],
+    paths: list,
+    settings,
+    residuals: dict | None = None,
 ) -> int | None:
     """The index of the joint part among ``parts`` (with their coordinates ``paths`` [T] over the frames)
     whose transforms carry the Gaussians ``x0`` [M, 3] along their ``path`` [T] x [M, 3] about as well
     as their own best rigid motion per frame (``joint_fit_tolerance`` of their radius, as ``_fits``):
-    pieces of one rigid part that f_trd's velocities cut apart; None when no part does."""
+    pieces of one rigid part that f_trd's velocities cut apart; None when no part does. ``residuals``:
+    their ``fit_joint`` report's ``radius`` and ``rigid``, when already computed."""
     x = x0.detach().double().cpu()
     truth = torch.stack([p.detach().double().cpu() for p in path])
-    radius = max(float((x - x.mean(0)).square().sum(-1).mean().sqrt()), 1e-12)
-    rigid = _rms(_positions(x, *part_transforms(x, list(truth))), truth) / radius
+    if residuals is None:
+        radius = max(float((x - x.mean(0)).square().sum(-1).mean().sqrt()), 1e-12)
+        rigid = _rms(_positions(x, *part_transforms(x, list(truth))), truth) / radius
+    else:
+        radius, rigid = max(residuals["radius"], 1e-12), residuals["rigid"]
     best, best_residual = None, math.inf
     for k, (part, q) in enumerate(zip(parts, paths, strict=True)):
         residual = _rms(_positions(x, *joint_transforms(part, q)), truth) / radius
