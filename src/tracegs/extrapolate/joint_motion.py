@@ -8,8 +8,7 @@ import torch
 
 from ..physics.force_law_fit import FittedLaw
 from ..physics.joint import Hinge, Slider, hinge_transforms, slider_transforms
-from ..physics.so3 import quat_multiply, quat_normalize, rotmat_to_quat
-from .thrown import thrown_motion
+from ..physics.so3 import quat_multiply, quat_normalize, rodrigues, rotmat_to_quat
 
 
 def joint_transforms(joint: dict, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -22,13 +21,28 @@ def joint_transforms(joint: dict, q: torch.Tensor) -> tuple[torch.Tensor, torch.
     return slider_transforms(slider, q)
 
 
-def _ends(part: dict, t0: float, t: float) -> tuple[torch.Tensor, ...]:
-    """``(R0, T0, R1, T1)``: a part's joint transforms at its law's state at ``t0`` and at ``t``."""
+def coordinate_at(part: dict, t0: float, t: float) -> float:
+    """A stored part's coordinate ``q`` at ``t``: its law integrated from its state ``(q0, v0)`` at ``t0``."""
     params = tuple(float(p) for p in part["params"])
     law = FittedLaw(part["law"], params, t0, part["q0"], part["v0"], 0.0, part["dt_max"])
-    q = law.integrate_from(part["q0"], part["v0"], t0, [t])[0]
-    rotation, translation = joint_transforms(part, torch.cat([q.new_tensor([part["q0"]]), q]))
+    return float(law.integrate_from(part["q0"], part["v0"], t0, [t])[0][0])
+
+
+def _ends(part: dict, t0: float, t: float) -> tuple[torch.Tensor, ...]:
+    """``(R0, T0, R1, T1)``: a part's joint transforms at its law's state at ``t0`` and at ``t``."""
+    q = torch.tensor([part["q0"], coordinate_at(part, t0, t)], dtype=torch.float64)
+    rotation, translation = joint_transforms(part, q)
     return rotation[0], translation[0], rotation[1], translation[1]
+
+
+def thrown_motion(part: dict, t0: float, t: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(turn [3, 3], shift [3])``: a stored thrown part's rigid motion from ``t0`` to ``t``
+    (``thrown.py``): its spin about its centre at ``t0`` (``pivot``), which moves along the floor at
+    ``velocity`` and bounces along ``axis``."""
+    s = t - t0
+    turn = rodrigues(part["spin"] * s)
+    centre = part["pivot"] + part["velocity"] * s + part["axis"] * (coordinate_at(part, t0, t) - part["q0"])
+    return turn, centre - turn @ part["pivot"]
 
 
 def part_motion(parts: list[dict], k: int, t0: float, t: float) -> tuple[torch.Tensor, torch.Tensor]:

@@ -25,7 +25,8 @@ import numpy as np
 import torch
 
 from ..physics.force_law_fit import FittedLaw, fit_law
-from ..physics.so3 import quat_to_axis_angle, rodrigues, rotmat_to_quat
+from ..physics.so3 import quat_to_axis_angle, rotmat_to_quat
+from .joint_motion import thrown_motion
 
 MIN_BOUNCES_FRAMES = 3
 """Fewest frames after the first contact (of those fitted) for the restitution to be identified."""
@@ -145,37 +146,33 @@ def fit_thrown(path: torch.Tensor, times: np.ndarray) -> dict | None:
     }
 
 
-def thrown_motion(part: dict, t0: float, t: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(turn [3, 3], shift [3])``: a stored thrown part's rigid motion from ``t0`` to ``t``: its spin
-    about its centre at ``t0`` (``pivot``), which moves along the floor and bounces along ``axis``."""
-    params = tuple(float(p) for p in part["params"])
-    law = FittedLaw(part["law"], params, t0, part["q0"], part["v0"], 0.0, part["dt_max"])
-    q = float(law.integrate_from(part["q0"], part["v0"], t0, [t])[0][0])
-    s = t - t0
-    turn = rodrigues(part["spin"] * s)
-    centre = part["pivot"] + part["velocity"] * s + part["axis"] * (q - part["q0"])
-    return turn, centre - turn @ part["pivot"]
-
-
 def _rms(a: torch.Tensor, b: torch.Tensor) -> float:
     return float((a - b).square().sum(-1).mean().sqrt())
 
 
-def _predict(fit: dict, start: torch.Tensor, t_start: float, times: np.ndarray) -> torch.Tensor:
-    """[H, M, 3] the points ``start`` [M, 3] at ``t_start`` moved by ``fit`` (``fit_thrown``) to ``times``."""
+def _stored(fit: dict, t: float) -> dict:
+    """The thrown part of ``fit`` (``fit_thrown``) as stored, from its state at ``t``, its last frame."""
     law = fit["law"]
-    q_start, v_start = (float(x[0]) for x in law.state_at([t_start]))
-    part = {
+    q0, v0 = (float(x[0]) for x in law.state_at([t]))
+    return {
+        "joint": "thrown",
         "axis": torch.from_numpy(fit["axis"]),
+        "pivot": fit["centre"],
         "velocity": torch.from_numpy(fit["velocity"]),
         "spin": fit["spin"],
-        "pivot": fit["centre"],
         "law": law.name,
-        "params": law.params,
-        "q0": q_start,
-        "v0": v_start,
+        "params": torch.tensor(law.params, dtype=torch.float64),
+        "q0": q0,
+        "v0": v0,
         "dt_max": law.dt_max,
+        "parent": None,
     }
+
+
+def _predict(fit: dict, start: torch.Tensor, t_start: float, times: np.ndarray) -> torch.Tensor:
+    """[H, M, 3] the points ``start`` [M, 3] at ``t_start`` (``fit``'s last frame) moved by ``fit``
+    (``fit_thrown``) to ``times``."""
+    part = _stored(fit, t_start)
     moved = []
     for t in times:
         turn, shift = thrown_motion(part, t_start, float(t))
@@ -232,18 +229,4 @@ def choose_thrown(
             **entry,
             "why": "the learned physics predicts the held-out frames better: the learned physics",
         }
-    q0, v0 = (float(x[0]) for x in law.state_at([t[-1]]))
-    part = {
-        "joint": "thrown",
-        "axis": torch.from_numpy(whole["axis"]),
-        "pivot": whole["centre"],
-        "velocity": torch.from_numpy(whole["velocity"]),
-        "spin": whole["spin"],
-        "law": law.name,
-        "params": torch.tensor(law.params, dtype=torch.float64),
-        "q0": q0,
-        "v0": v0,
-        "dt_max": law.dt_max,
-        "parent": None,
-    }
-    return part, {**entry, "adopted": True, "why": "adopted"}
+    return _stored(whole, float(t[-1])), {**entry, "adopted": True, "why": "adopted"}
