@@ -166,7 +166,8 @@ def turntable() -> SceneSpec:
         RigidMotion("static"),
     )
     disc_colors = [(0.95, 0.85, 0.20), (0.15, 0.15, 0.18), (0.85, 0.30, 0.20), (0.92, 0.92, 0.90)] * 3
-    disc_tex = tx.with_noise(tx.sectors(TEXTURE_SIZE, disc_colors[:-1], rim=(0.2, 0.45, 0.8)), r(1), 0.15)
+    # sectors out to the edge: a ring of one colour would turn unseen, its ground-truth motion not in the images
+    disc_tex = tx.with_noise(tx.sectors(TEXTURE_SIZE, disc_colors[:-1]), r(1), 0.15)
     spin = RigidMotion("rotation", axis=(0, 0, 1), angular_velocity=2.0)
     disc = Part(
         "turntable", (Piece(place(g.cylinder(0.62, 0.05), translation=(0, 0, -0.275)), disc_tex),), spin
