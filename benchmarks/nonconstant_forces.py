@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 from pathlib import Path
 
 import torch
@@ -53,12 +54,12 @@ def main() -> None:
     rows = run_variant_table(
         "nonconstant-forces", variants, a.out, tuple(a.scenes), PRESET, RESOLUTION, train=not a.report_only
     )
-    kept = {}  # the rows of the existing record that are not measured again
-    earlier = ""
+    kept, machines = {}, {}  # the rows of the existing record not measured again; their machines
     if a.json is not None and a.json.exists():
         record = read_record(a.json)
         kept = {(r["scene"], r["variant"]): {"commit": record["commit"], **r} for r in record["rows"]}
-        earlier = f" Rows at {record['commit']}: {record['machine']}."
+        machines = dict(re.findall(r"Rows at ([0-9a-f]+): ([^.]*)\.", record.get("notes", "")))
+        machines.setdefault(record["commit"], record["machine"])
     by_scene: dict[str, dict[str, dict]] = {}
     for row in rows:
         by_scene.setdefault(row["scene"], {})[row["variant"]] = row
@@ -104,8 +105,8 @@ def main() -> None:
             "DefGS trained side by side, one thread each; `TRACE` is `cpu-fast` as it ships, with the joint "
             "laws (docs/PHYSICS.md); `TRACE paper extrapolation` the same training calibrated without them."
         )
-        if kept:
-            notes += earlier
+        for commit in dict.fromkeys(r["commit"] for r in kept.values()):  # where the kept rows were measured
+            notes += f" Rows at {commit}: {machines.get(commit, 'machine not recorded')}."
         title = "Forces that are not constant (`cpu-fast`, 128 px)"
         write_record(a.json, make_record("nonconstant-forces", table, command, title=title, notes=notes))
 
