@@ -130,3 +130,22 @@ def test_a_free_body_s_spin_is_reported_where_it_moves_the_part(tmp_path):
     assert physics_errors(model, state, tmp_path, [1.0])["parts"]["2"]["omega_rel_error"] == pytest.approx(
         0.5
     )
+
+
+def test_a_part_touching_another_keeps_its_own_gaussians(tmp_path):
+    """A turning disc lying on a still plate: at t_max the plate's surface points are as near the
+    disc's Gaussians as the disc's own; the disc's motion over the span tells them apart."""
+    rng = np.random.default_rng(1)
+
+    def flat(n):  # points on the unit-half disc z = 0
+        radius, angle = np.sqrt(rng.uniform(0.0, 0.25, n)), rng.uniform(0.0, 2 * np.pi, n)
+        return np.c_[radius * np.cos(angle), radius * np.sin(angle), np.zeros(n)]
+
+    _write_gt(tmp_path)
+    truth = np.concatenate([flat(3000) + [0, 0, -0.005], flat(3000)])  # the plate just under the disc
+    np.savez(tmp_path / "gt" / "points.npz", points=truth, part_ids=np.repeat([1, 2], 3000))
+    points, ids = np.concatenate([flat(200) + [0, 0, -0.005], flat(200)]), np.repeat([1, 2], 200)
+    out = physics_errors(StandIn(points, ids, 2.0), ExtrapolationState(t_max=0.75), tmp_path, [0.8, 1.0])
+    assert out["parts"]["2"]["gaussians"] == 200 and out["parts"]["1"]["gaussians"] == 200
+    assert out["parts"]["1"]["mean_trajectory_error"] < 1e-5  # no disc Gaussian counted as the plate's
+    assert out["parts"]["2"]["mean_trajectory_error"] < 1e-5

@@ -169,8 +169,15 @@ def turntable() -> SceneSpec:
     # sectors out to the edge: a ring of one colour would turn unseen, its ground-truth motion not in the images
     disc_tex = tx.with_noise(tx.sectors(TEXTURE_SIZE, disc_colors[:-1]), r(1), 0.15)
     spin = RigidMotion("rotation", axis=(0, 0, 1), angular_velocity=2.0)
+    # and its thin side in stripes (the side takes one column of the cap's texture per angle: too smooth to see turn)
+    side_tex = tx.with_noise(tx.stripes(TEXTURE_SIZE, 24, (0.15, 0.15, 0.18), (0.92, 0.92, 0.90)), r(3), 0.15)
     disc = Part(
-        "turntable", (Piece(place(g.cylinder(0.62, 0.05), translation=(0, 0, -0.275)), disc_tex),), spin
+        "turntable",
+        (
+            Piece(place(g.cylinder(0.62, 0.05), translation=(0, 0, -0.275)), disc_tex),
+            Piece(place(g.cylinder(0.622, 0.05, caps=False), translation=(0, 0, -0.275)), side_tex),
+        ),
+        spin,
     )
     center = (0.36, 0.0, -0.14)
     box_tex = tx.with_noise(tx.checker(TEXTURE_SIZE, 3, (0.20, 0.55, 0.85), (0.95, 0.60, 0.70)), r(2), 0.35)
