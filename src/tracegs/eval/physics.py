@@ -71,17 +71,13 @@ def _transform(T: np.ndarray, x: torch.Tensor) -> torch.Tensor:
     return x @ T[:3, :3].T + T[:3, 3]
 
 
+def _distance(x: torch.Tensor, surface: torch.Tensor) -> torch.Tensor:
+    """[N] the distance from each point of ``x`` [N, 3] to the nearest of ``surface`` [M, 3]."""
+    return torch.cat([torch.cdist(c, surface).min(dim=1).values for c in x.split(8192)])
+
+
 OWNER_TIMES = 5
 """Times over [0, t] at which ``_parts_at`` compares each Gaussian's path with the parts'."""
-
-
-def _world_points(gt, t: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(points [M, 3], part ids [M])`` of the ground truth moved to time ``t``, part by part."""
-    points, part_ids, transforms, _ = gt
-    T = transforms(t)  # [P, 4, 4], rest -> world at t
-    parts = sorted(int(p) for p in np.unique(part_ids))
-    world = np.concatenate([points[part_ids == p] @ T[p - 1][:3, :3].T + T[p - 1][:3, 3] for p in parts])
-    return world, np.concatenate([part_ids[part_ids == p] for p in parts])
 
 
 def _parts_at(model, state, t: float, gt, radius: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -89,33 +85,22 @@ def _parts_at(model, state, t: float, gt, radius: float) -> tuple[torch.Tensor, 
     surface lies within ``radius`` of a Gaussian at ``t``, it belongs to the one whose motion carries it
     along its own path best (the mean distance over ``OWNER_TIMES`` times from 0 to ``t``): where two
     parts touch (a disc on its pedestal), the nearest surface point can be either part's."""
+    points, part_ids, transforms, _ = gt
+    parts = sorted(int(p) for p in np.unique(part_ids))
     means = gaussians_at(model, state, t)["means"]
-    world, ids = _world_points(gt, t)
-    parts = sorted(int(p) for p in np.unique(ids))
-    near = torch.stack(
-        [
-            torch.cat(
-                [torch.cdist(c, _tensor(world[ids == p], means)).min(dim=1).values for c in means.split(8192)]
-            )
-            <= radius
-            for p in parts
-        ]
-    )  # [P, N]
+    T_t = transforms(t)  # [P, 4, 4], rest -> world at t
+    near = []  # [P] x [N]: within radius of the part's surface at t
+    for p in parts:
+        surface = torch.as_tensor(points[part_ids == p], dtype=means.dtype, device=means.device)
+        near.append(_distance(means, _transform(T_t[p - 1], surface)) <= radius)
+    near = torch.stack(near)
     cost = torch.zeros(near.shape, dtype=means.dtype, device=means.device)
-    transforms, T_t = gt[2], gt[2](t)
     for s in np.linspace(0.0, t, OWNER_TIMES)[:-1]:
         x_s, T_s = gaussians_at(model, state, float(s))["means"], transforms(float(s))
         for i, p in enumerate(parts):  # the part's motion from t back to s, applied to where it is at t
-            back = T_s[p - 1] @ np.linalg.inv(T_t[p - 1])
-            cost[i] += (_transform(back, means) - x_s).norm(dim=-1)
-    cost = torch.where(near, cost, torch.full_like(cost, math.inf))
-    best = cost.argmin(dim=0)
-    owner = torch.as_tensor(parts, device=means.device)[best]
+            cost[i] += (_transform(T_s[p - 1] @ np.linalg.inv(T_t[p - 1]), means) - x_s).norm(dim=-1)
+    owner = torch.as_tensor(parts, device=means.device)[cost.masked_fill(~near, math.inf).argmin(dim=0)]
     return means, torch.where(near.any(dim=0), owner, torch.zeros_like(owner))
-
-
-def _tensor(points: np.ndarray, like: torch.Tensor) -> torch.Tensor:
-    return torch.as_tensor(points, dtype=like.dtype, device=like.device)
 
 
 @torch.no_grad()
