@@ -10,6 +10,7 @@ from tests.conftest import blob_model
 from tracegs.extrapolate import calibrate, gaussians_at, handover_time
 from tracegs.extrapolate.thrown import fit_thrown
 from tracegs.physics.force_law import LAWS, integrate
+from tracegs.physics.free_body import centre_of_mass, main_piece
 from tracegs.physics.so3 import rodrigues
 
 G, E, FLOOR = 8.0, 0.7, -0.34  # the floor of the centre's height (a ball's radius above the ground)
@@ -25,33 +26,51 @@ def height(t: float) -> float:
     return float(q[0, 0])
 
 
-def ball(t: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(R, T)`` of the ball from t = 0: spun about its centre, which drifts and bounces."""
+def ball(t: float, start: torch.Tensor = START) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(R, T)`` of the ball from t = 0: spun about its centre, at ``start`` at t = 0, which drifts
+    and bounces (its floor ``start`` - ``START`` above ``FLOOR``)."""
     turn = rodrigues(SPIN * t)
-    centre = START + DRIFT * t + UP * (height(t) - float(START[2]))
-    return turn, centre - turn @ START
+    centre = start + DRIFT * t + UP * (height(t) - float(START[2]))
+    return turn, centre - turn @ start
+
+
+def surface(n: int = 4000, radius: float = 0.16, seed: int = 1) -> torch.Tensor:
+    """[M, 3] points on a sphere about the origin, three times as dense on its +z half as on its -z
+    half (the cameras saw one side better): their mean is 0.04 above the centre."""
+    gen = torch.Generator().manual_seed(seed)
+    u = torch.randn(n, 3, generator=gen, dtype=torch.float64)
+    u = u / u.norm(dim=1, keepdim=True)
+    keep = (u[:, 2] > 0) | (torch.rand(n, generator=gen, dtype=torch.float64) < 1 / 3)
+    return radius * u[keep]
 
 
 def test_fit_thrown_recovers_the_bounce_the_drift_and_the_spin():
-    gen = torch.Generator().manual_seed(1)
-    offsets = 0.1 * torch.randn(200, 3, generator=gen, dtype=torch.float64)
-    offsets -= offsets.mean(0)  # the centre is the points' mean
+    offsets = surface()
+    assert float(offsets.mean(0).norm()) > 0.04  # the points' mean is not the centre
     times = np.linspace(0.0, 0.75, 31)
     path = torch.stack([(START + offsets) @ ball(t)[0].T + ball(t)[1] for t in times])
     fit = fit_thrown(path, times)
     assert fit is not None and abs(fit["contact"] - 0.2236) < 0.01
+    centre = torch.stack([START + DRIFT * t + UP * (height(t) - float(START[2])) for t in times])
+    assert float((torch.from_numpy(fit["centres"]) - centre).norm(dim=1).max()) < 2e-3
+    torch.testing.assert_close(fit["centre"], centre[-1], atol=2e-3, rtol=0)
     constants = fit["law"].constants
-    assert abs(constants["g"] - G) < 1e-3 * G and abs(constants["e"] - E) < 1e-3
-    assert abs(constants["floor"] - FLOOR) < 1e-4
-    assert abs(float(torch.from_numpy(fit["axis"]) @ UP)) > 1 - 1e-8
-    torch.testing.assert_close(torch.from_numpy(fit["velocity"]), DRIFT, atol=1e-6, rtol=0)
+    assert abs(constants["g"] - G) < 0.01 * G and abs(constants["e"] - E) < 0.01
+    assert abs(constants["floor"] - FLOOR) < 2e-3
+    assert abs(float(torch.from_numpy(fit["axis"]) @ UP)) > 1 - 1e-4
+    torch.testing.assert_close(torch.from_numpy(fit["velocity"]), DRIFT, atol=5e-3, rtol=0)
     torch.testing.assert_close(fit["spin"], SPIN, atol=1e-6, rtol=0)
     straight = torch.stack([START + offsets + DRIFT * t for t in times])
     assert fit_thrown(straight, times) is None
 
 
 def test_a_bouncing_ball_bounces_on_after_the_handover():
-    model, (thrown, floor) = blob_model([tuple(START.tolist()), (0.0, 0.0, -0.8)], [ball, None])
+    centre = {}  # a body turns about its centre of mass: the centroid of the blob's hull, not its mean
+    model, (thrown, floor) = blob_model(
+        [tuple(START.tolist()), (0.0, 0.0, -0.8)], [lambda t: ball(t, centre["c"]), None]
+    )
+    blob = model.gaussians["means"][thrown].detach()
+    centre["c"] = centre_of_mass(blob[main_piece(blob)])
     t_max = 0.75
     state = calibrate(model, t_max, extent=2.0)
     entry = next(e for e in state.report["joint_laws"] if e.get("model") == "thrown")
