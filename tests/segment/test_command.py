@@ -87,3 +87,17 @@ def test_a_defgs_run_needs_flow_features(tmp_path):
         segment_run(tmp_path / "run", k=2, score=False)
     report = segment_run(tmp_path / "run", k=3, score=False, settings=SegmentConfig(features="flow"))
     assert report["k"] <= 3 and np.isfinite(report["static_threshold"])
+
+
+def test_ignore_pixels_reaches_the_scores(trained, tmp_path):
+    """`--ignore-pixels` leaves the smaller ground-truth segments out of the scores (OGC's rule): past
+    the image's size, every one of them, so nothing is left to recall."""
+    _, run = trained
+    scores = {}
+    for ignore in (0, 24 * 24 + 1):
+        main(["segment", "--run", str(run), "--k", "2", "--out", str(tmp_path / str(ignore)),
+              "--json", str(tmp_path / f"{ignore}.json"), "--ignore-pixels", str(ignore),
+              "--settings.static-displacement", "1e-9"])  # fmt: skip
+        scores[ignore] = json.loads((tmp_path / f"{ignore}.json").read_text())["scores"]["training_times"]
+    assert scores[0]["recall"] > 0 and np.isfinite(scores[0]["miou"])
+    assert scores[24 * 24 + 1]["recall"] == 0 and np.isnan(scores[24 * 24 + 1]["miou"])

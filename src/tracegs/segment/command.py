@@ -110,8 +110,9 @@ def segment_run(
             "note": _truth_note(truth),
         }
         report["scores"] = score_segmentation(
-            model, state, labels, seg.k, seg.has_static, data, cfg.downscale, truth
-        )
+            model, state, labels, seg.k, seg.has_static, data, cfg.downscale, truth,
+            ignore_pixels=ignore_pixels,
+        )  # fmt: skip
         report["seconds"]["score"] = time.perf_counter() - started
     text = json.dumps(report, indent=2)
     atomic_write_text(out / "segment.json", text)
