@@ -6,9 +6,8 @@ The part's centre moves on a line plus a coordinate ``q`` along one direction ``
 centre's departure from its best straight line lies along ``n`` (its first principal direction). The
 centre of a frame is the centroid of the solid its Gaussians bound (``centre_of_mass`` of their main
 piece, as a free body's): a spinning ball's Gaussians slide over it, so its rigid fits from frame to
-frame are poor, and their mean lies off the centre by as much as the cameras saw one side more densely
-than another (``bounce``: 0.05 of a 0.16 radius, the hull's centroid 0.02), an offset that turns with
-the ball and bends the centre's path (the drift 0.42 against 0.35, the future 3.4x further off).
+frame are poor, and their mean lies off the centre where the cameras saw one side more densely, an
+offset that turns with the ball and bends the centre's path.
 ``q(t)`` follows the ``bounce`` law (``physics/force_law.py``: ``q'' = -g`` above a floor, the speed
 reversed and scaled by the restitution ``e`` at a contact); the part spins at the constant angular
 velocity of its rigid turns from frame to frame. As a joint law is, it is chosen by the held-out end of
@@ -29,6 +28,7 @@ import numpy as np
 import torch
 
 from ..physics.force_law_fit import FittedLaw, fit_law
+from ..physics.free_body import centre_of_mass, fit_rigid_transform, main_piece
 from ..physics.so3 import quat_to_axis_angle, rotmat_to_quat
 from .joint_motion import thrown_motion
 
@@ -54,8 +54,6 @@ def centres(path: torch.Tensor) -> np.ndarray:
     """[T, 3] the centre of the points ``path`` [T, M, 3] in each frame: the centroid of the solid that
     the main piece of the last frame's points bounds (``physics.free_body``: ``main_piece``,
     ``centre_of_mass``)."""
-    from ..physics.free_body import centre_of_mass, main_piece
-
     piece = main_piece(path[-1])
     return np.stack([centre_of_mass(p[piece]).numpy() for p in path])
 
@@ -63,8 +61,6 @@ def centres(path: torch.Tensor) -> np.ndarray:
 def spin_rate(path: torch.Tensor, times: np.ndarray) -> torch.Tensor:
     """[3] the mean angular velocity of the rigid turns of the points ``path`` [T, M, 3] from each frame
     to the next (Kabsch about their means), world frame."""
-    from ..physics.free_body import fit_rigid_transform
-
     rates = []
     for k in range(len(times) - 1):
         a, b = path[k] - path[k].mean(0), path[k + 1] - path[k + 1].mean(0)
