@@ -8,6 +8,12 @@ products only: what dominates a 4 x 64 MLP). The floor is that count at the best
 reaches in one large matrix product in the fields' dtype (bf16 where the run uses it, else float32),
 with the same threads. Ratio = measured time / floor.
 
+The loop runs as the fields run inside a training: on a heap that keeps its freed memory. A training
+step allocates into the heap its earlier steps grew (0-5 minor page faults a step, measured on the
+demo's run); a loop of the fields alone returns each freed ~1 MB buffer to the system and faults it in
+again at the next allocation (~3600 faults a step, about a third of its time on a 2-core AMD EPYC).
+So glibc is told to keep freed memory (``mallopt``), and the faults per step are reported.
+
 Run it alone on the machine. Usage:
 .venv/bin/python benchmarks/fields_floor.py --run runs/demo/trace [--json docs/results/fields-floor.json]
 """
@@ -15,6 +21,9 @@ Run it alone on the machine. Usage:
 from __future__ import annotations
 
 import argparse
+import ctypes
+import ctypes.util
+import resource
 import time
 from pathlib import Path
 
@@ -36,13 +45,32 @@ def gemm_rate(dtype: torch.dtype, size: int = 2048, repeats: int = 20) -> float:
     return 2 * size**3 * repeats / (time.perf_counter() - start)
 
 
-def fields_step(model, t_prime: float, t: float) -> None:
+def keep_freed_memory() -> bool:
+    """Ask glibc to keep freed memory in the heap (no mmap per large buffer, no trimming), as a
+    training's grown heap does; False where the C library is not glibc."""
+    name = ctypes.util.find_library("c")
+    try:
+        libc = ctypes.CDLL(name)
+        m_trim_threshold, m_mmap_threshold = -1, -3
+        return bool(libc.mallopt(m_mmap_threshold, 1 << 30)) and bool(libc.mallopt(m_trim_threshold, 1 << 30))
+    except (OSError, AttributeError, TypeError):
+        return False
+
+
+def loss_weights(model, t_prime: float, t: float) -> dict[str, torch.Tensor]:
+    """Fixed random weights of the outputs (a stand-in for the rasteriser's gradient)."""
+    with torch.no_grad():
+        state, _ = model.training_state(t_prime, t)
+    g = torch.Generator().manual_seed(0)
+    return {name: torch.randn(state[name].shape, generator=g) for name in ("means", "quats", "scales")}
+
+
+def fields_step(model, t_prime: float, t: float, weights: dict[str, torch.Tensor]) -> None:
     """One step's fields, forward and backward (a fixed random functional of every output)."""
     state, losses = model.training_state(t_prime, t)
     total = sum(v.sum() for v in losses.values()) if losses else 0.0
-    g = torch.Generator().manual_seed(0)
-    for name in ("means", "quats", "scales"):
-        total = total + (state[name] * torch.randn(state[name].shape, generator=g)).sum()
+    for name, w in weights.items():
+        total = total + (state[name] * w).sum()
     total.backward()
     model.zero_grad(set_to_none=True)
 
@@ -50,15 +78,18 @@ def fields_step(model, t_prime: float, t: float) -> None:
 def measure(model, threads: int, repeats: int = 50) -> dict:
     torch.set_num_threads(threads)
     t_prime, t = 0.55, 0.6
+    weights = loss_weights(model, t_prime, t)
     with FlopCounterMode(display=False) as counter:
-        fields_step(model, t_prime, t)
+        fields_step(model, t_prime, t, weights)
     flops = counter.get_total_flops()
     for _ in range(10):
-        fields_step(model, t_prime, t)
+        fields_step(model, t_prime, t, weights)
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     start = time.perf_counter()
     for _ in range(repeats):
-        fields_step(model, t_prime, t)
+        fields_step(model, t_prime, t, weights)
     ms = 1000 * (time.perf_counter() - start) / repeats
+    faults = (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults) / repeats
     dtype = torch.bfloat16 if model.bf16 else torch.float32
     rate = gemm_rate(dtype)
     floor_ms = 1000 * flops / rate
@@ -74,6 +105,7 @@ def measure(model, threads: int, repeats: int = 50) -> dict:
         "floor_ms": round(floor_ms, 3),
         "measured_ms": round(ms, 2),
         "ratio": round(ms / floor_ms, 1),
+        "page_faults_per_step": round(faults),
     }
 
 
@@ -86,6 +118,7 @@ def main() -> None:
     model.train()
     for p in model.parameters():
         p.requires_grad_(True)
+    kept = keep_freed_memory()
     rows = [measure(model, threads) for threads in (1, 2)]
     for row in rows:
         print(row)
@@ -93,13 +126,18 @@ def main() -> None:
         record = make_record(
             "fields-floor",
             rows,
-            f"python benchmarks/fields_floor.py --run {args.run}",
+            f"tracegs demo; python benchmarks/fields_floor.py --run {args.run} --json {args.json}",
             title="The fields of one stage-2 step against their FLOP floor",
             notes=(
                 "One step's fields (f_defo at t', f_trd, RK2, the acceleration consistency) forward and "
                 "backward on the trained run's Gaussians, without the rasteriser; FLOPs of the matrix "
                 "products by torch.utils.flop_counter; floor = those FLOPs at the rate of a 2048^2 matrix "
-                "product in the same dtype and threads. ratio = measured / floor."
+                "product in the same dtype and threads. ratio = measured / floor. The heap keeps freed "
+                f"memory (glibc mallopt: {'yes' if kept else 'not available'}), as a training's grown heap "
+                "does (0-5 page faults a step); with glibc's default a loop of the fields alone faults its "
+                "~1 MB buffers in at every step (~4000 faults, +45% on one thread). The "
+                "run: the README demo's (fan, cpu-fast), alone on the cores. On a CPU with AMX the floor "
+                "is bf16's, about ten times lower (1.2 TFLOP/s on one Xeon core)."
             ),
         )
         write_record(args.json, record)
