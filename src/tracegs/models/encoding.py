@@ -54,14 +54,18 @@ def linear_of_parts(
     per call, so this saves the [N, E] concatenation and the time's share of the first GEMM (and the
     same again at Deformable 3DGS's skip layer). Equal to ``layer(cat)`` up to float rounding.
     """
-    bias, out = layer.bias, None
+    bias, rows = layer.bias, []
     for values, columns in parts:
         weight = layer.weight[:, columns]
         if values.shape[0] == 1:
             bias = torch.nn.functional.linear(values, weight, bias)
         else:
-            term = torch.nn.functional.linear(values, weight)
-            out = term if out is None else out + term
-    if out is None:  # a single point: every part was folded, the result is the bias row
+            rows.append((values, weight))
+    if not rows:  # a single point: every part was folded, the result is the bias row
         return bias
-    return out if bias is None else out + bias
+    (values, weight), *rest = rows
+    # the bias (with the folded rows) enters the first product (addmm), the other parts add theirs
+    out = torch.nn.functional.linear(values, weight, None if bias is None else bias.reshape(-1))
+    for values, weight in rest:
+        out = torch.addmm(out, values, weight.t())
+    return out

@@ -1,0 +1,97 @@
+"""The native RK2 (physics/fused.py) against the PyTorch sub-steps it replaces, and its own gradients
+against finite differences."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from tracegs.physics import fused
+from tracegs.physics.integrate import DynamicsParams, integrate
+from tracegs.physics.so3 import quat_normalize
+
+pytestmark = pytest.mark.skipif(fused.EXTENSION.load() is None, reason="the native RK2 did not build here")
+
+
+def particles(n: int, dtype=torch.float64, seed: int = 0) -> list[torch.Tensor]:
+    """x, q (unit) and v, w, a, e of ``n`` particles; the first few turn by less than the small-angle
+    switch of ``axis_angle_to_quat`` in a sub-step, one not at all."""
+    g = torch.Generator().manual_seed(seed)
+    x = torch.randn(n, 3, generator=g, dtype=dtype)
+    q = quat_normalize(torch.randn(n, 4, generator=g, dtype=dtype))
+    v, w, a, e = (s * torch.randn(n, 3, generator=g, dtype=dtype) for s in (1.0, 3.0, 1.0, 2.0))
+    w[:4] *= 1e-4
+    e[:4] *= 1e-4
+    w[4], e[4] = 0.0, 0.0
+    return [x, q, v, w, a, e]
+
+
+def run(tensors: list[torch.Tensor], enabled: bool, rotate: bool, duration: float, dt_max: float):
+    """integrate's outputs and the gradients of a fixed random functional of them (x, q, params)."""
+    inputs = [t.clone().requires_grad_() for t in tensors]
+    x, q, *params = inputs
+    previous, fused.ENABLED = fused.ENABLED, enabled
+    try:
+        x_end, q_end, params_end = integrate(
+            x, q if rotate else None, DynamicsParams(*params), duration, dt_max, method="rk2"
+        )
+    finally:
+        fused.ENABLED = previous
+    g = torch.Generator().manual_seed(1)
+    outputs = [x_end, *params_end[:2]] + ([q_end] if rotate else [])
+    total = sum((o * torch.randn(o.shape, generator=g, dtype=o.dtype)).sum() for o in outputs)
+    wrt = [t for i, t in enumerate(inputs) if rotate or i != 1]
+    return outputs + list(torch.autograd.grad(total, wrt))
+
+
+@pytest.mark.parametrize("rotate", [True, False])
+@pytest.mark.parametrize("duration", [0.05, -0.05, 0.01])
+def test_native_rk2_matches_the_pytorch_substeps(rotate, duration):
+    tensors = particles(200)
+    ours = run(tensors, True, rotate, duration, 1 / 59)
+    reference = run(tensors, False, rotate, duration, 1 / 59)
+    for a, b in zip(ours, reference, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
+
+
+def test_native_rk2_in_float32_agrees_to_rounding():
+    tensors = particles(300, dtype=torch.float32)
+    for a, b in zip(
+        run(tensors, True, True, 0.05, 1 / 59), run(tensors, False, True, 0.05, 1 / 59), strict=True
+    ):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-5)
+
+
+def test_native_rk2_gradients_match_finite_differences():
+    x, q, v, w, a, e = particles(6)
+    inputs = [t.clone().requires_grad_() for t in (x, q, v, w, a, e)]
+    assert torch.autograd.gradcheck(lambda *t: fused.fused_rk2(t[0], t[1], t[2:], 0.02, 3), inputs)
+    assert torch.autograd.gradcheck(
+        lambda *t: fused.fused_rk2(t[0], None, t[1:], -0.02, 2)[0], inputs[:1] + inputs[2:]
+    )
+
+
+def test_long_chains_with_gradients_fall_back_and_agree():
+    tensors = particles(20)
+    steps = fused.MAX_STEPS + 6
+    ours = run(tensors, True, True, steps * 0.01, 0.01)  # over MAX_STEPS: the PyTorch path
+    reference = run(tensors, False, True, steps * 0.01, 0.01)
+    for a, b in zip(ours, reference, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    with torch.no_grad():  # without gradients there is no replay, and no limit
+        x, q, *params = tensors
+        native = integrate(x, q, DynamicsParams(*params), steps * 0.01, 0.01)
+        fused.ENABLED = False
+        try:
+            torch_path = integrate(x, q, DynamicsParams(*params), steps * 0.01, 0.01)
+        finally:
+            fused.ENABLED = True
+    torch.testing.assert_close(native[0], torch_path[0], rtol=1e-10, atol=1e-10)
+    torch.testing.assert_close(native[1], torch_path[1], rtol=1e-10, atol=1e-10)
+
+
+def test_third_order_and_other_schemes_keep_the_pytorch_path():
+    x, q, v, w, a, e = particles(5)
+    assert fused.applies(x, q, DynamicsParams(v, w, a, e), 3)
+    assert not fused.applies(x, q, DynamicsParams(v, w, a, e, a, e), 3)  # jerk terms
+    assert not fused.applies(x.float(), q, DynamicsParams(v, w, a, e), 3)  # mixed dtypes
