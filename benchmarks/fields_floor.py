@@ -8,11 +8,9 @@ products only: what dominates a 4 x 64 MLP). The floor is that count at the best
 reaches in one large matrix product in the fields' dtype (bf16 where the run uses it, else float32),
 with the same threads. Ratio = measured time / floor.
 
-The loop runs as the fields run inside a training: on a heap that keeps its freed memory. A training
-step allocates into the heap its earlier steps grew (0-5 minor page faults a step, measured on the
-demo's run); a loop of the fields alone returns each freed ~1 MB buffer to the system and faults it in
-again at the next allocation (~3600 faults a step, about a third of its time on a 2-core AMD EPYC).
-So glibc is told to keep freed memory (``mallopt``), and the faults per step are reported.
+The loop runs on a heap that keeps its freed memory (glibc ``mallopt``), as a training's grown heap
+does (0-5 page faults a step); the faults per step are reported. The native RK2 and the PyTorch
+sub-steps are measured in alternate blocks of one process, each row taking its fastest block.
 
 Run it alone on the machine. Usage:
 .venv/bin/python benchmarks/fields_floor.py --run runs/demo/trace [--json docs/results/fields-floor.json]
@@ -105,15 +103,14 @@ def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]
     dtype = torch.bfloat16 if model.bf16 else torch.float32
     rate = gemm_rate(dtype)
     floor_ms = 1000 * flops / rate
-    moving = model.gaussians["means"].shape[0] - (
-        0 if model.static_mask is None else int(model.static_mask.sum())
-    )
+    rows = model.moving_rows
+    moving = model.gaussians["means"].shape[0] if rows is None else rows.numel()
     return [
         {
             "threads": threads,
             "rk2": "native" if native else "pytorch",
             "dtype": str(dtype).removeprefix("torch."),
-            "moving_gaussians": int(moving),
+            "moving_gaussians": moving,
             "mflop_per_step": round(flops / 1e6, 1),
             "gemm_gflops": round(rate / 1e9, 1),
             "floor_ms": round(floor_ms, 3),
@@ -148,13 +145,11 @@ def main() -> None:
                 "One step's fields (f_defo at t', f_trd, RK2, the acceleration consistency) forward and "
                 "backward on the trained run's Gaussians, without the rasteriser; FLOPs of the matrix "
                 "products by torch.utils.flop_counter; floor = those FLOPs at the rate of a 2048^2 matrix "
-                "product in the same dtype and threads. ratio = measured / floor; measured: the fastest of six blocks of 20 steps, the RK2 native and PyTorch "
-                "in alternate blocks. The heap keeps freed "
-                f"memory (glibc mallopt: {'yes' if kept else 'not available'}), as a training's grown heap "
-                "does (0-5 page faults a step); with glibc's default a loop of the fields alone faults its "
-                "~1 MB buffers in at every step (~4000 faults, +45% on one thread). The "
-                "run: the README demo's (fan, cpu-fast), alone on the cores. On a CPU with AMX the floor "
-                "is bf16's, about ten times lower (1.2 TFLOP/s on one Xeon core)."
+                "product in the same dtype and threads; ratio = measured / floor. measured: the fastest of "
+                "six blocks of 20 steps, the native RK2 and the PyTorch sub-steps in alternate blocks. "
+                f"The heap keeps freed memory (glibc mallopt: {'yes' if kept else 'not available'}), as a "
+                "training's grown heap does. The run: the README demo's (fan, cpu-fast), alone on the "
+                "cores. On a CPU with AMX the floor is bf16's, about ten times lower."
             ),
         )
         write_record(args.json, record)

@@ -314,7 +314,7 @@ def integrate(
         return x, q, params
     n = num_substeps(dt_total, dt_max)
     dt = dt_total / n
-    if method == "rk2" and (q is None or q.shape[-2:] != (3, 3)) and fused.applies(x, q, params, n):
+    if method == "rk2" and fused.applies(x, q, params, n):  # (quaternions or positions only)
         x, q = fused.fused_rk2(x, q, params, dt, n)  # the same sub-steps as one native op
         return x, q, params_at(params, dt_total)
     for _ in range(n):

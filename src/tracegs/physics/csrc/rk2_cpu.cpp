@@ -7,7 +7,8 @@
 // Per sub-step (h = dt / 2; v, w, a, e: equivalent velocity, angular velocity and their rates):
 //   x_mid = x + h (v + w x x),   x' = x + dt ((v + h a) + (w + h e) x x_mid),
 //   q' = normalize(quat(dt (w + h e)) o q),   v' = v + dt a,   w' = w + dt e.
-// The backward recomputes a particle's sub-steps (no activation is stored) and runs them in reverse.
+// The backward replays a particle's sub-steps, recording each one's intermediates (nothing is kept
+// from the forward), and runs them in reverse.
 // Same formulas, same order of operations as the PyTorch path; results agree to float rounding
 // (tests/physics/test_fused_rk2.py).
 
@@ -86,20 +87,41 @@ inline V3<T> load3(const T* p) { return {p[0], p[1], p[2]}; }
 template <typename T>
 inline void store3(T* p, V3<T> a) { p[0] = a.x; p[1] = a.y; p[2] = a.z; }
 
-// One sub-step, in place.
+// Particle i's state at the start (orientation the identity when only positions move).
 template <typename T>
-inline void substep(State<T>& s, V3<T> a, V3<T> e, T dt, bool rotate) {
+inline State<T> start_state(const T* x, const T* q, const T* v, const T* w, int64_t i, bool rotate) {
+    State<T> s{load3(x + 3 * i), load3(v + 3 * i), load3(w + 3 * i), {T(1), T(0), T(0), T(0)}};
+    if (rotate) s.q = {q[4 * i], q[4 * i + 1], q[4 * i + 2], q[4 * i + 3]};
+    return s;
+}
+
+// What a sub-step's backward reads: its start state and the intermediates of its rotation.
+template <typename T>
+struct Record {
+    State<T> start;
+    V3<T> x_mid, w_mid, r;  // r = dt w_mid, the rotation vector
+    Q<T> dq, m;             // dq = quat(r), m = dq o q before normalising
+    T qs, dw, ds, len;      // axis_angle's s and derivative coefficients; |m|
+};
+
+// One sub-step, in place; ``rec`` (if given) receives what the backward needs.
+template <typename T>
+inline void substep(State<T>& s, V3<T> a, V3<T> e, T dt, bool rotate, Record<T>* rec = nullptr) {
     const T h = T(0.5) * dt;
     const V3<T> x_mid = s.x + h * (s.v + cross(s.w, s.x));
     const V3<T> v_mid = s.v + h * a, w_mid = s.w + h * e;
     const V3<T> x_new = s.x + dt * (v_mid + cross(w_mid, x_mid));
+    if (rec) *rec = {s, x_mid, w_mid, dt * w_mid, {}, {}, T(0), T(0), T(0), T(0)};
     if (rotate) {
         T qw, qs, dw, ds;
         const V3<T> r = dt * w_mid;
         axis_angle(r, qw, qs, dw, ds);
-        const Q<T> m = mul(Q<T>{qw, qs * r.x, qs * r.y, qs * r.z}, s.q);
-        const T norm = std::max(std::sqrt(m.w * m.w + m.x * m.x + m.y * m.y + m.z * m.z), T(NORM_EPS));
+        const Q<T> dq{qw, qs * r.x, qs * r.y, qs * r.z};
+        const Q<T> m = mul(dq, s.q);
+        const T len = std::sqrt(m.w * m.w + m.x * m.x + m.y * m.y + m.z * m.z);
+        const T norm = std::max(len, T(NORM_EPS));
         s.q = {m.w / norm, m.x / norm, m.y / norm, m.z / norm};
+        if (rec) rec->dq = dq, rec->m = m, rec->qs = qs, rec->dw = dw, rec->ds = ds, rec->len = len;
     }
     s.x = x_new;
     s.v = s.v + dt * a;
@@ -111,8 +133,7 @@ void forward_kernel(const T* x, const T* q, const T* v, const T* w, const T* a, 
                     T* q_out, int64_t n, T dt, int64_t steps, bool rotate) {
     at::parallel_for(0, n, 2048, [&](int64_t i0, int64_t i1) {
         for (int64_t i = i0; i < i1; ++i) {
-            State<T> s{load3(x + 3 * i), load3(v + 3 * i), load3(w + 3 * i), {T(1), T(0), T(0), T(0)}};
-            if (rotate) s.q = {q[4 * i], q[4 * i + 1], q[4 * i + 2], q[4 * i + 3]};
+            State<T> s = start_state(x, q, v, w, i, rotate);
             const V3<T> ai = load3(a + 3 * i), ei = load3(e + 3 * i);
             for (int64_t k = 0; k < steps; ++k) substep(s, ai, ei, dt, rotate);
             store3(x_out + 3 * i, s.x);
@@ -130,33 +151,25 @@ void backward_kernel(const T* x, const T* q, const T* v, const T* w, const T* a,
                      int64_t n, T dt, int64_t steps, bool rotate) {
     const T h = T(0.5) * dt;
     at::parallel_for(0, n, 2048, [&](int64_t i0, int64_t i1) {
-        State<T> path[MAX_STEPS];
+        Record<T> path[MAX_STEPS];
         for (int64_t i = i0; i < i1; ++i) {
-            State<T> s{load3(x + 3 * i), load3(v + 3 * i), load3(w + 3 * i), {T(1), T(0), T(0), T(0)}};
-            if (rotate) s.q = {q[4 * i], q[4 * i + 1], q[4 * i + 2], q[4 * i + 3]};
+            State<T> s = start_state(x, q, v, w, i, rotate);
             const V3<T> ai = load3(a + 3 * i), ei = load3(e + 3 * i);
-            for (int64_t k = 0; k < steps; ++k) {
-                path[k] = s;
-                substep(s, ai, ei, dt, rotate);
-            }
+            for (int64_t k = 0; k < steps; ++k) substep(s, ai, ei, dt, rotate, &path[k]);
             V3<T> gx = load3(gx_out + 3 * i), gv{0, 0, 0}, gw{0, 0, 0}, ga{0, 0, 0}, ge{0, 0, 0};
             Q<T> gq{0, 0, 0, 0};
             if (rotate) gq = {gq_out[4 * i], gq_out[4 * i + 1], gq_out[4 * i + 2], gq_out[4 * i + 3]};
             for (int64_t k = steps - 1; k >= 0; --k) {
-                const State<T>& p = path[k];
+                const Record<T>& rec = path[k];
+                const State<T>& p = rec.start;
+                const V3<T> x_mid = rec.x_mid, w_mid = rec.w_mid;
                 // v' = v + dt a, w' = w + dt e: gv, gw pass through to the step's v, w
                 ga = ga + dt * gv;
                 ge = ge + dt * gw;
-                const V3<T> x_mid = p.x + h * (p.v + cross(p.w, p.x));
-                const V3<T> w_mid = p.w + h * ei;
                 V3<T> g_wmid{0, 0, 0};
                 if (rotate) {
-                    T qw, qs, dw, ds;
-                    const V3<T> r = dt * w_mid;
-                    axis_angle(r, qw, qs, dw, ds);
-                    const Q<T> dq{qw, qs * r.x, qs * r.y, qs * r.z};
-                    const Q<T> m = mul(dq, p.q);
-                    const T len = std::sqrt(m.w * m.w + m.x * m.x + m.y * m.y + m.z * m.z);
+                    const Q<T>& m = rec.m;
+                    const T len = rec.len;
                     Q<T> gm;
                     if (len > T(NORM_EPS)) {
                         const Q<T> u{m.w / len, m.x / len, m.y / len, m.z / len};
@@ -167,9 +180,9 @@ void backward_kernel(const T* x, const T* q, const T* v, const T* w, const T* a,
                         gm = {gq.w / T(NORM_EPS), gq.x / T(NORM_EPS), gq.y / T(NORM_EPS), gq.z / T(NORM_EPS)};
                     }
                     const Q<T> gdq = mul(gm, conj(p.q));  // d<g, dq o q>/d dq = g o q*
-                    gq = mul(conj(dq), gm);               // d<g, dq o q>/d q = dq* o g
-                    const V3<T> gvec{gdq.x, gdq.y, gdq.z};
-                    const V3<T> gr = (gdq.w * dw) * r + qs * gvec + (dot(gvec, r) * ds) * r;
+                    gq = mul(conj(rec.dq), gm);           // d<g, dq o q>/d q = dq* o g
+                    const V3<T> gvec{gdq.x, gdq.y, gdq.z}, r = rec.r;
+                    const V3<T> gr = (gdq.w * rec.dw) * r + rec.qs * gvec + (dot(gvec, r) * rec.ds) * r;
                     g_wmid = dt * gr;
                 }
                 // x' = x + dt (v_mid + w_mid x x_mid)
