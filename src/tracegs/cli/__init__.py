@@ -22,6 +22,7 @@ import tyro
 
 from .commands import (
     Bench,
+    Build,
     Calibrate,
     Demo,
     Eval,
@@ -246,6 +247,19 @@ def _metrics(a: Metrics) -> None:
     _dump(compare_images(a.image_a, a.image_b, "cpu" if a.device == "auto" else a.device, a.lpips), a.json)
 
 
+def _build(a: Build) -> None:
+    """`tracegs build`: every native extension built (or found in the cache), each one's status."""
+    from ..cpp import build_all
+
+    report = build_all()
+    lines = [
+        f"{e['what']}: "
+        + (f"ready ({e['seconds']:.0f} s)" if e["built"] else f"not built ({e['error']}); its fallback runs")
+        for e in report
+    ]
+    _dump(report, a.json, "\n".join(lines))
+
+
 def _bench(a: Bench) -> None:
     """`tracegs bench WHAT`: one benchmark; its record goes to ``--json`` when given."""
     from ..bench.command import bench_command
@@ -265,6 +279,7 @@ COMMANDS: dict[str, tuple[type, Callable]] = {
     "segment": (Segment, _segment),
     "metrics": (Metrics, _metrics),
     "bench": (Bench, _bench),
+    "build": (Build, _build),
     "results": (Results, _results),
 }
 """Each command: the dataclass of its flags (its docstring's first line is its line in ``tracegs

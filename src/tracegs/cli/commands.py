@@ -252,6 +252,17 @@ class Metrics:
 
 
 @dataclass
+class Build:
+    """Build the native CPU extensions now (rasteriser, SSIM, RK2, HexPlane), else each builds on first use.
+
+    `scripts/install.sh` runs it. An extension that does not build is reported with the reason, and
+    its PyTorch fallback runs instead (slower, same results)."""
+
+    json: Path | None = None
+    """Also write each extension's status here."""
+
+
+@dataclass
 class Bench:
     """Run a benchmark: `raster`, `fields`, `methods` (TRACE, TRACE_4dgs, DefGS) or `ablations` (Table 4).
 

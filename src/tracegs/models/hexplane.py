@@ -18,24 +18,18 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
-from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..cpp import NativeExtension
+from ..cpp import EXTENSIONS
 
 PLANES = tuple(itertools.combinations(range(4), 2))  # (0,1) xy (0,2) xz (0,3) xt (1,2) yz (1,3) yt (2,3) zt
 # plane (i, j) is read with coordinate i along its width and j along its height (grid_sample's order)
 _AXES = [axis for pair in PLANES for axis in pair]
 
-EXTENSION = NativeExtension(
-    "tracegs_hexplane_cpu",
-    Path(__file__).resolve().parent / "csrc" / "hexplane_cpu.cpp",
-    what="native HexPlane kernels",
-    fallback="torch's grid_sample",
-)
+EXTENSION = EXTENSIONS["tracegs_hexplane_cpu"]
 
 
 @dataclass

@@ -10,18 +10,11 @@ N: particles.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import torch
 
-from ..cpp import NativeExtension
+from ..cpp import EXTENSIONS
 
-EXTENSION = NativeExtension(
-    "tracegs_rk2_cpu",
-    Path(__file__).resolve().parent / "csrc" / "rk2_cpu.cpp",
-    what="native RK2 integrator",
-    fallback="the PyTorch sub-steps",
-)
+EXTENSION = EXTENSIONS["tracegs_rk2_cpu"]
 
 ENABLED = True
 """Use the native op where it applies (set False to compare with the PyTorch path)."""

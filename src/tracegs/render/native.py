@@ -12,20 +12,13 @@ densification reads. Everything runs in float32; the thread count is ``torch.get
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import torch
 from torch import Tensor
 
-from ..cpp import NativeExtension
+from ..cpp import EXTENSIONS
 from .reference import Projection
 
-EXTENSION = NativeExtension(
-    "tracegs_raster_cpu",
-    Path(__file__).resolve().parent / "csrc" / "raster_cpu.cpp",
-    what="native CPU rasteriser",
-    fallback="the (much slower) pure-PyTorch reference backend",
-)
+EXTENSION = EXTENSIONS["tracegs_raster_cpu"]
 
 
 def load_extension():

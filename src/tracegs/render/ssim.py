@@ -11,19 +11,12 @@ no compiler) ``image_metrics.ssim`` runs.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import torch
 
-from ..cpp import NativeExtension
+from ..cpp import EXTENSIONS
 from ..image_metrics import ssim
 
-EXTENSION = NativeExtension(
-    "tracegs_ssim_cpu",
-    Path(__file__).resolve().parent / "csrc" / "ssim_cpu.cpp",
-    what="native CPU SSIM",
-    fallback="pytorch-msssim's SSIM",
-)
+EXTENSION = EXTENSIONS["tracegs_ssim_cpu"]
 
 
 class _NativeSSIM(torch.autograd.Function):
