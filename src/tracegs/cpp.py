@@ -189,34 +189,15 @@ def _ninja_on_path() -> None:
 
 _PACKAGE = Path(__file__).resolve().parent
 EXTENSIONS: dict[str, NativeExtension] = {
-    ext.name: ext
-    for ext in (
-        NativeExtension(
-            "tracegs_raster_cpu",
-            _PACKAGE / "render" / "csrc" / "raster_cpu.cpp",
-            what="native CPU rasteriser",
-            fallback="the (much slower) pure-PyTorch reference backend",
-        ),
-        NativeExtension(
-            "tracegs_ssim_cpu",
-            _PACKAGE / "render" / "csrc" / "ssim_cpu.cpp",
-            what="native CPU SSIM",
-            fallback="pytorch-msssim's SSIM",
-        ),
-        NativeExtension(
-            "tracegs_rk2_cpu",
-            _PACKAGE / "physics" / "csrc" / "rk2_cpu.cpp",
-            what="native RK2 integrator",
-            fallback="the PyTorch sub-steps",
-        ),
-        NativeExtension(
-            "tracegs_hexplane_cpu",
-            _PACKAGE / "models" / "csrc" / "hexplane_cpu.cpp",
-            what="native HexPlane kernels",
-            fallback="torch's grid_sample",
-        ),
+    name: NativeExtension(name, _PACKAGE / source, what, fallback)
+    for name, source, what, fallback in (
+        ("tracegs_raster_cpu", "render/csrc/raster_cpu.cpp", "native CPU rasteriser",
+         "the (much slower) pure-PyTorch reference backend"),
+        ("tracegs_ssim_cpu", "render/csrc/ssim_cpu.cpp", "native CPU SSIM", "pytorch-msssim's SSIM"),
+        ("tracegs_rk2_cpu", "physics/csrc/rk2_cpu.cpp", "native RK2 integrator", "the PyTorch sub-steps"),
+        ("tracegs_hexplane_cpu", "models/csrc/hexplane_cpu.cpp", "native HexPlane kernels", "torch's grid_sample"),
     )
-}
+}  # fmt: skip
 """The package's extensions by name; each module that uses one takes it from here."""
 
 
