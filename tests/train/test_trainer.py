@@ -486,23 +486,25 @@ def test_initial_box_of_the_blender_layout_is_the_usual_cube(tiny_scene, tmp_pat
     assert torch.equal(trainer.aabb, torch.tensor([[-1.3] * 3, [1.3] * 3]))
 
 
-@pytest.mark.parametrize("amx", [False, True])
-def test_a_bf16_run_is_rendered_in_fp32_on_cpus_without_amx(tiny_scene, tmp_path, monkeypatch, amx):
+@pytest.mark.parametrize("fast_bf16", [False, True])
+def test_a_bf16_run_is_rendered_in_fp32_on_cpus_without_hardware_bf16(
+    tiny_scene, tmp_path, monkeypatch, fast_bf16
+):
     import tracegs.run
 
     cfg = _cfg(tiny_scene, tmp_path / "run", bf16=True)
     Trainer(cfg, progress=False).train()
-    monkeypatch.setattr(tracegs.run, "cpu_has_amx_bf16", lambda: amx)
+    monkeypatch.setattr(tracegs.run, "cpu_has_fast_bf16", lambda: fast_bf16)
     run = load_run(tmp_path / "run", device="cpu")
     model = run.model
-    assert run.config.bf16 and model.bf16 == amx
+    assert run.config.bf16 and model.bf16 == fast_bf16
     model.set_static_mask(None)  # the fields see every Gaussian, whatever the short run marked static
     with torch.no_grad():  # fields that move the Gaussians (the heads start at zero)
         for param in model.field_parameters():
             param.add_(0.05 * torch.randn_like(param))
     means = model.deform(0.5)["means"]
     model.bf16 = False
-    assert torch.equal(means, model.deform(0.5)["means"]) != amx
+    assert torch.equal(means, model.deform(0.5)["means"]) != fast_bf16
 
 
 def test_describe_names_the_images_steps_and_a_downscale_for_large_images(tiny_scene, tmp_path):

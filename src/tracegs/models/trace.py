@@ -38,7 +38,7 @@ class TraceModel(nn.Module):
         super().__init__()
         self.cfg = cfg
         self.bf16 = cfg.bf16
-        """bf16 autocast of the fields on CPU; ``run.load_run`` turns it off on CPUs without AMX."""
+        """bf16 autocast of the fields on CPU; ``run.load_run`` turns it off on CPUs without hardware bf16."""
         self.gaussians = gaussians
         self.register_buffer("aabb", aabb.clone().float())
         self.register_buffer("frame_interval", torch.tensor(float(frame_interval)))
@@ -115,7 +115,7 @@ class TraceModel(nn.Module):
             self.deformation.fit_bounds(self.to_field_frame(self.gaussians["means"].detach()))
 
     def autocast(self):
-        """bf16 autocast for the fields on CPU when configured (AMX makes the MLPs ~3x faster)."""
+        """bf16 autocast for the fields on CPU when configured (AMX or AVX512-BF16: ~3x faster products)."""
         if self.bf16 and self.aabb.device.type == "cpu":
             return torch.autocast("cpu", dtype=torch.bfloat16)
         return contextlib.nullcontext()

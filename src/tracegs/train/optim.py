@@ -21,9 +21,19 @@ def gaussian_lrs(cfg, extent: float) -> dict[str, float]:
 
 
 def gaussian_optimizers(params: nn.ParameterDict, cfg, extent: float) -> dict[str, torch.optim.Optimizer]:
-    """One Adam per Gaussian parameter (densification replaces rows of each independently)."""
+    """One Adam per Gaussian parameter (densification replaces rows of each independently), fused
+    where it can be (six updates 0.50 -> 0.26 ms a step at 7k Gaussians, 2 CPU threads)."""
     lrs = gaussian_lrs(cfg, extent)
-    return {name: torch.optim.Adam([params[name]], lr=lrs[name], eps=1e-15) for name in params.keys()}
+    return {
+        name: torch.optim.Adam([params[name]], lr=lrs[name], eps=1e-15, fused=_fusable([params[name]]))
+        for name in params.keys()
+    }
+
+
+def _fusable(params: list[torch.Tensor]) -> bool | None:
+    """True where torch's fused Adam runs (float32 on the CPU or CUDA): the same update in one pass
+    per tensor; None (the default loop) elsewhere."""
+    return all(p.device.type in ("cpu", "cuda") and p.dtype == torch.float32 for p in params) or None
 
 
 def field_optimizer(groups: dict[str, list[nn.Parameter]], cfg) -> torch.optim.Optimizer | None:
@@ -35,8 +45,7 @@ def field_optimizer(groups: dict[str, list[nn.Parameter]], cfg) -> torch.optim.O
     # the fused kernel is the same update in one pass per tensor: half the time of the default loop
     # on the CPU (6 against 12 ms per step for the 2.4M HexPlane values)
     params = [p for group in param_groups for p in group["params"]]
-    fused = all(p.device.type in ("cpu", "cuda") and p.dtype == torch.float32 for p in params)
-    return torch.optim.Adam(param_groups, eps=1e-15, fused=fused or None)
+    return torch.optim.Adam(param_groups, eps=1e-15, fused=_fusable(params))
 
 
 def colour_optimizer(colour: nn.Module | None, cfg) -> torch.optim.Optimizer | None:
