@@ -280,7 +280,7 @@ RESUMABLE_CHANGES = frozenset(
     {"run", "data", "device", "threads", "backend", "bf16", "checkpoint_every", "log_every"}
 )
 """Settings that may change when a killed run is resumed: where things are and the arithmetic of the
-machine (bf16 where the CPU has AMX), not what is trained."""
+machine (bf16 where the CPU has AMX or AVX512-BF16), not what is trained."""
 
 
 def is_after_training(name: str) -> bool:
