@@ -24,6 +24,8 @@ import re
 import subprocess
 from pathlib import Path
 
+from .utils import cpu_flags
+
 KEYS = ("benchmark", "title", "command", "machine", "date", "commit", "columns", "rows", "notes")
 """The record's keys, in the order they are written; all but ``notes`` are required."""
 
@@ -72,15 +74,13 @@ def machine_description() -> str:
     """This machine in one line: usable cores, CPU model and its vector / matrix extensions, e.g.
     ``2 cores, Intel Xeon Processor (AVX2, AVX-512, AMX-BF16)``. Reads ``/proc/cpuinfo`` (else what
     ``platform`` knows); no GPU is named (a GPU benchmark says so in its record)."""
-    model, flags = "", set()
+    model = ""
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             key, _, value = line.partition(":")
-            key = key.strip()
-            if key == "model name" and not model:
+            if key.strip() == "model name":
                 model = value.strip()
-            elif key == "flags" and not flags:
-                flags = set(value.split())
+                break
     except OSError:
         pass
     model = re.sub(r"\((R|TM|tm)\)", "", model or platform.processor() or platform.machine())
@@ -89,7 +89,7 @@ def machine_description() -> str:
         cores = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
         cores = os.cpu_count() or 1
-    features = [name for flag, name in _FEATURES if flag in flags]
+    features = [name for flag, name in _FEATURES if flag in cpu_flags()]
     return f"{cores} core{'s' if cores != 1 else ''}, {model}" + (
         f" ({', '.join(features)})" if features else ""
     )

@@ -169,13 +169,21 @@ def first_line(err: BaseException) -> str:
 
 
 @functools.cache
+def cpu_flags(cpuinfo: str = "/proc/cpuinfo") -> frozenset[str]:
+    """The instruction-set flags of the first CPU in ``cpuinfo`` (empty where it cannot be read)."""
+    try:
+        with open(cpuinfo) as f:
+            for line in f:
+                key, _, value = line.partition(":")
+                if key.strip() == "flags":
+                    return frozenset(value.split())
+    except OSError:
+        pass
+    return frozenset()
+
+
 def cpu_has_fast_bf16(cpuinfo: str = "/proc/cpuinfo") -> bool:
     """True on x86 CPUs with bf16 dot products in hardware: AMX-BF16 tiles (Intel Xeon since Sapphire
     Rapids) or AVX512-BF16 (AMD Zen 4 and later, Intel Cooper Lake). There bf16 autocast makes the
     fields' matrix products 3x faster; elsewhere bf16 is emulated and slower than fp32."""
-    try:
-        with open(cpuinfo) as f:
-            flags = set().union(*(line.split() for line in f if line.startswith("flags")))
-    except OSError:
-        return False
-    return bool(flags & {"amx_bf16", "avx512_bf16"})
+    return bool(cpu_flags(cpuinfo) & {"amx_bf16", "avx512_bf16"})
