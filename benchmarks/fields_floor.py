@@ -6,14 +6,15 @@ the RK2 integration, the acceleration consistency), without the rasteriser. Thei
 operations are counted by PyTorch's own counter (`torch.utils.flop_counter.FlopCounterMode`, matrix
 products only: what dominates a 4 x 64 MLP). The floor is that count at the best rate this CPU
 reaches in one large matrix product in the fields' dtype (bf16 where the run uses it, else float32),
-with the same threads. Ratio = measured time / floor.
+with the same threads. Ratio = measured time / floor. The step's own matrix products (their shapes and
+dtypes) are also timed replayed alone: what the fields would cost if every other op were free.
 
 The loop runs on a heap that keeps its freed memory (glibc ``mallopt``), as a training's grown heap
 does (0-5 page faults a step); the faults per step are reported. The native RK2 and the PyTorch
 sub-steps are measured in alternate blocks of one process, each row taking its fastest block.
 
 Run it alone on the machine. Usage:
-.venv/bin/python benchmarks/fields_floor.py --run runs/demo/trace [--json docs/results/fields-floor.json]
+.venv/bin/python benchmarks/fields_floor.py --run runs/demo/trace [--fields run|bf16|fp32] [--json F]
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import time
 from pathlib import Path
 
 import torch
+from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils.flop_counter import FlopCounterMode
 
 from tracegs.physics import fused
@@ -78,6 +80,44 @@ def fields_step(model, t_prime: float, t: float, weights: dict[str, torch.Tensor
     model.zero_grad(set_to_none=True)
 
 
+GEMMS = {torch.ops.aten.mm.default, torch.ops.aten.addmm.default, torch.ops.aten.bmm.default}
+
+
+class _RecordGemms(TorchDispatchMode):
+    """Records the shapes and dtypes of the matrix products a step runs."""
+
+    def __init__(self):
+        super().__init__()
+        self.calls: list[tuple] = []
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        if func in GEMMS:
+            tensors = [a for a in args if isinstance(a, torch.Tensor)]
+            self.calls.append((func, [(tuple(a.shape), a.stride(), a.dtype) for a in tensors]))
+        return func(*args, **(kwargs or {}))
+
+
+def gemms_alone_ms(model, t_prime: float, t: float, weights, blocks: int = 6, steps: int = 20) -> float:
+    """The step's own matrix products (its shapes, strides and dtypes), replayed alone on fresh operands:
+    what the fields would cost with every other op free. The fastest block, per step."""
+    with _RecordGemms() as recorder:
+        fields_step(model, t_prime, t, weights)
+    replay = []
+    for func, operands in recorder.calls:
+        tensors = [
+            torch.empty_strided(shape, stride, dtype=dtype).normal_() for shape, stride, dtype in operands
+        ]
+        replay.append((func, tensors))
+    best = float("inf")
+    for _ in range(blocks):
+        start = time.perf_counter()
+        for _ in range(steps):
+            for func, tensors in replay:
+                func(*tensors)
+        best = min(best, 1000 * (time.perf_counter() - start) / steps)
+    return best
+
+
 def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]:
     """Rows for the native RK2 and the PyTorch sub-steps (``physics/fused.py``), measured in alternating
     blocks of ``steps`` steps: each row's time is its fastest block (the others ran beside whatever else
@@ -103,6 +143,7 @@ def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]
     dtype = torch.bfloat16 if model.bf16 else torch.float32
     rate = gemm_rate(dtype)
     floor_ms = 1000 * flops / rate
+    gemms_ms = gemms_alone_ms(model, t_prime, t, weights)
     rows = model.moving_rows
     moving = model.gaussians["means"].shape[0] if rows is None else rows.numel()
     return [
@@ -114,6 +155,7 @@ def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]
             "mflop_per_step": round(flops / 1e6, 1),
             "gemm_gflops": round(rate / 1e9, 1),
             "floor_ms": round(floor_ms, 3),
+            "gemms_alone_ms": round(gemms_ms, 2),
             "measured_ms": round(best[native], 2),
             "ratio": round(best[native] / floor_ms, 1),
             "page_faults_per_step": round(faults),
@@ -126,30 +168,40 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--run", type=Path, required=True, help="a trained run folder (e.g. the demo's)")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument(
+        "--fields", choices=("run", "bf16", "fp32"), nargs="+", default=["run"],
+        help="the fields' dtype (rows for each): the run's (as it loads on this CPU), bf16, fp32",
+    )  # fmt: skip
     args = ap.parse_args()
     model = load_run(args.run, "cpu").model
+    as_loaded = model.bf16
     model.train()
     for p in model.parameters():
         p.requires_grad_(True)
     kept = keep_freed_memory()
-    rows = [row for threads in (1, 2) for row in measure(model, threads)]
+    rows = []
+    for fields in args.fields:
+        model.bf16 = as_loaded if fields == "run" else fields == "bf16"
+        rows += [row for threads in (1, 2) for row in measure(model, threads)]
     for row in rows:
         print(row)
     if args.json:
         record = make_record(
             "fields-floor",
             rows,
-            f"tracegs demo; python benchmarks/fields_floor.py --run {args.run} --json {args.json}",
+            f"tracegs demo; python benchmarks/fields_floor.py --run {args.run} --fields {' '.join(args.fields)} "
+            f"--json {args.json}",
             title="The fields of one stage-2 step against their FLOP floor",
             notes=(
                 "One step's fields (f_defo at t', f_trd, RK2, the acceleration consistency) forward and "
                 "backward on the trained run's Gaussians, without the rasteriser; FLOPs of the matrix "
                 "products by torch.utils.flop_counter; floor = those FLOPs at the rate of a 2048^2 matrix "
-                "product in the same dtype and threads; ratio = measured / floor. measured: the fastest of "
-                "six blocks of 20 steps, the native RK2 and the PyTorch sub-steps in alternate blocks. "
+                "product in the same dtype and threads; ratio = measured / floor; gemms_alone: the step's "
+                "own matrix products (shapes, strides, dtypes) replayed alone. measured: the fastest of six "
+                "blocks of 20 steps, the native RK2 and the PyTorch sub-steps in alternate blocks. "
                 f"The heap keeps freed memory (glibc mallopt: {'yes' if kept else 'not available'}), as a "
                 "training's grown heap does. The run: the README demo's (fan, cpu-fast), alone on the "
-                "cores. On a CPU with AMX the floor is bf16's, about ten times lower."
+                "cores."
             ),
         )
         write_record(args.json, record)
