@@ -133,3 +133,16 @@ def test_truncate_log_keeps_the_lines_up_to_the_step(tmp_path):
     assert path.read_text() == ""
     truncate_log(tmp_path / "none.jsonl", 3)  # no log yet: nothing to do
     assert not (tmp_path / "none.jsonl").exists()
+
+
+def test_calibrate_switches_the_surface_painters_rule_of_a_trained_run(tmp_path):
+    from tracegs.cli import main
+
+    scene = write_tiny_scene(tmp_path / "scene")
+    run = tmp_path / "run"
+    shutil.copytree(FIXTURE, run)
+    assert load_run(run, device="cpu").config.extrapolation.surface_painters == "edge"  # the default
+    args = ["calibrate", "--run", str(run), "--data", str(scene), "--surface-painters", "hold"]
+    main([*args, "--device", "cpu"])
+    assert json.loads((run / "config.json").read_text())["extrapolation"]["surface_painters"] == "hold"
+    assert load_run(run, device="cpu").config.extrapolation.surface_painters == "hold"

@@ -25,6 +25,7 @@ from pathlib import Path
 import torch
 
 from .config import TrainConfig, config_from_dict, config_to_dict
+from .config.validate import check_choices
 from .extrapolate import ExtrapolationState, has_policy
 from .models.gaussians import empty_like_params
 from .models.trace import TraceModel
@@ -99,7 +100,9 @@ def config_from_saved(data: dict, source: Path | str = "config") -> TrainConfig:
     """A config from its saved JSON data, that of an earlier version of tracegs included
     (``run_compat.migrate_config``); RunError naming ``source`` when it cannot be read."""
     try:
-        return config_from_dict(TrainConfig, migrate_config(data))
+        cfg = config_from_dict(TrainConfig, migrate_config(data))
+        check_choices(cfg)
+        return cfg
     except (ValueError, TypeError) as err:
         raise RunError(f"{source}: {err}") from None
 

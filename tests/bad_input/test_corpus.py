@@ -353,6 +353,13 @@ RUN_CASES = [
         "unknown config field",
     ),
     (
+        "config.json with an unknown choice",
+        _config(lambda d: d["extrapolation"].update(surface_painters="sideways")),
+        ["render"],
+        "config.json",
+        "must be one of edge, hold",
+    ),
+    (
         "run without checkpoint",
         lambda r: (r / "checkpoint.pt").unlink(),
         ["render"],

@@ -171,3 +171,15 @@ def test_a_row_that_differs_after_training_reuses_the_trace_training(tmp_path, m
     assert not joint.with_name(joint.name + ".previous").exists()
     assert json.loads((joint / "config.json").read_text())["extrapolation"]["joint_laws"] is True
     assert json.loads((trace / "config.json").read_text())["extrapolation"]["joint_laws"] is False
+
+
+def test_cli_bench_trains_its_rows_with_the_seed_asked(tmp_path, monkeypatch):
+    import tracegs.bench.command as command
+    from tracegs.cli import main
+
+    seen = {}
+    monkeypatch.setattr(command, "run_variant_table", lambda *a, **k: seen.update(overrides=a[6]) or [])
+    main(["bench", "ablations", "--out", str(tmp_path / "b"), "--seed", "3", "--variants", "dt=2"])
+    assert seen["overrides"] == {"seed": 3}
+    main(["bench", "ablations", "--out", str(tmp_path / "b"), "--variants", "dt=2"])
+    assert seen["overrides"] == {}  # the preset's seed

@@ -1,6 +1,7 @@
 """``extrapolation.hold_surface``: after the handover, a moving Gaussian amid still ones (it draws something
-across a still surface, a shadow) is stopped where its path would leave that surface; while on it, and
-a body's Gaussians always, the physics carries them on."""
+across a still surface, a shadow) holds still (``surface_painters="hold"``) or is stopped where its path
+would leave that surface (``"edge"``; while on it the physics carries it on); a body's Gaussians are
+always carried on."""
 
 import pytest
 import torch
@@ -35,9 +36,9 @@ def _scene():
     return points, defo, phys, n_plane
 
 
-def _controlled_model(fraction: float):
+def _controlled_model(fraction: float, painters: str = "edge"):
     """The model of ``_scene`` with ``extrapolation.surface_still_fraction = fraction`` (0: ``hold_surface``
-    off), and its post-training state."""
+    off) and ``surface_painters = painters``, and its post-training state."""
     torch.manual_seed(0)
     points, defo, phys, n_plane = _scene()
     cfg = make_config("tiny", device="cpu", bf16=False)
@@ -45,6 +46,7 @@ def _controlled_model(fraction: float):
     if fraction > 0:
         cfg.extrapolation.surface_still_fraction = fraction
     cfg.extrapolation.hold_unseen = False
+    cfg.extrapolation.surface_painters = painters
     model = randomised_model(cfg, n=len(points))
     with torch.no_grad():
         model.gaussians["means"].copy_(points)  # the canonical state is t = 0
@@ -87,6 +89,21 @@ def test_a_painter_stops_where_it_would_leave_its_surface(t):
     k = float(a[2]) / h
     assert abs(k - round(k)) < 1e-4  # on a step
     assert float(_distance(a, plane)) <= reach < float(_distance(a + h * UP, plane))
+
+
+@pytest.mark.parametrize("t", [1.2, 2.0])
+def test_held_painters_keep_their_handover_state(t):
+    model, state, plane, phys = _controlled_model(0.75, painters="hold")
+    t0 = handover_time(model, T_MAX)
+    start = model.deform(t0)
+    with torch.no_grad():
+        now = gaussians_at(model, state, t)
+    n = len(plane)
+    torch.testing.assert_close(now["means"][:n], start["means"][:n], rtol=0, atol=0)  # the plane, frozen
+    carried = start["means"] + (t - t0) * phys
+    torch.testing.assert_close(now["means"][n:-2], carried[n:-2], rtol=0, atol=1e-5)  # the body
+    torch.testing.assert_close(now["means"][-2:], start["means"][-2:], rtol=0, atol=0)  # A and B
+    torch.testing.assert_close(now["quats"][-2:], start["quats"][-2:], rtol=0, atol=1e-6)
 
 
 def test_the_stop_is_the_same_for_every_later_time():

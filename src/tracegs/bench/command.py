@@ -22,6 +22,8 @@ def bench_command(a):
         overrides = {} if a.device == "auto" else {"device": a.device}
         if a.dynamic_iterations is not None:
             overrides["dynamic_iterations"] = a.dynamic_iterations
+        if a.seed is not None:
+            overrides["seed"] = a.seed
         records = run_variant_table(
             a.what,
             variants,

@@ -76,6 +76,8 @@ OPTIONS = {
         "dynamics.detach_acceleration_features": True,
     },
     "consistency over the step's frames": {"stage2.consistency_frames": 0.0},
+    "painters held": {"extrapolation.surface_painters": "hold"},
+    "painters stopped at the edge": {"extrapolation.surface_painters": "edge"},
     "2 views 8k dynamic": {"stage2.views_per_step": 2, "dynamic_iterations": 8_000},
     "3 views 6k dynamic": {"stage2.views_per_step": 3, "dynamic_iterations": 6_000},
     "4 views 5k dynamic": {"stage2.views_per_step": 4, "dynamic_iterations": 5_000},

@@ -170,6 +170,7 @@ def _calibrate(a: Calibrate) -> None:
             ("handover_frames", a.handover_frames),
             ("free_bodies", a.free_bodies),
             ("joint_laws", a.joint_laws),
+            ("surface_painters", a.surface_painters),
         )
         if v is not None
     }

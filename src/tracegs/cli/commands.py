@@ -100,6 +100,10 @@ class Calibrate:
     """New ``extrapolation.joint_laws`` (default: the run's): the rigid parts on a hinge or a rail
     whose coordinate follows an identified force law (spring-damper, pendulum, friction stop) move by
     it after the handover; what was tried and why each part kept the learned physics is printed."""
+    surface_painters: Literal["edge", "hold"] | None = None
+    """New ``extrapolation.surface_painters`` (default: the run's): the moving Gaussians amid still ones
+    (a moving part's shadow) are carried by the physics until their path would leave their surface
+    (``edge``), or ``hold`` still after the handover."""
     data: Path | None = None
     """Scene folder (default: the one the run was trained on)."""
     json: Path | None = None
@@ -282,6 +286,9 @@ class Bench:
     """Image size of synthesised scenes."""
     dynamic_iterations: int | None = None
     """Override the preset's dynamic iterations (a shorter schedule for large tables)."""
+    seed: int | None = None
+    """Train the rows with this random seed (default: the preset's, 0); give each seed its own --out
+    (a run folder made with another seed is set aside and trained again)."""
     variants: tuple[str, ...] = ()
     """Subset of rows to run (e.g. TRACE DefGS, or dt=1 "no f_defo"); empty = all of the paper's.
     The ablations also take our options beside the paper's switches (e.g. "no skip static")."""

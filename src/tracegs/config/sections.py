@@ -151,10 +151,15 @@ class ExtrapolationConfig:
     """How much faster than f_defo (plus a floor of 0.05 scene units per unit of time) f_trd must move
     an unseen Gaussian for ``hold_unseen`` to hold it."""
     hold_surface: bool = True
-    """Stop a moving Gaussian amid still ones where its path leaves the still surface around it
-    (farther from every still Gaussian than twice its distance at the handover, or twice their
-    spacing): such Gaussians draw what moves across a still surface (a moving part's shadow), and off
-    the surface would smear it over the background. Not in the paper."""
+    """Keep a moving Gaussian amid still ones (a surface painter) on its still surface after the
+    handover, as ``surface_painters`` says: such Gaussians draw what moves across a still surface (a
+    moving part's shadow), and off the surface would smear it over the background. Not in the paper."""
+    surface_painters: Literal["edge", "hold"] = "edge"
+    """What ``hold_surface`` does with a painter from the handover on: ``edge``: the physics carries it,
+    and it stops for good at the first step that would take it off its surface (farther from every
+    still Gaussian than twice its distance at the handover, or twice their spacing); ``hold``: it
+    holds still at its state there (a shadow stops moving, but cannot slide across its surface and
+    past its rim, as f_trd sometimes carries it; docs/PHYSICS.md)."""
     surface_still_fraction: float = 0.5
     """Fraction of its ``surface_neighbours`` nearest Gaussians that must hold still for
     ``hold_surface`` to count a moving Gaussian as drawing on their surface."""

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import typing
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -93,6 +94,18 @@ def _settings(cfg, prefix: str = ""):
             yield prefix + f.name, value
 
 
+def _choices(cfg, prefix: str = ""):
+    """``(dotted name, value, allowed values)`` of every setting of a (nested) config dataclass whose
+    type is a ``Literal`` (a config.json is read without its types: ``"method": "tarce"`` loads)."""
+    hints = typing.get_type_hints(type(cfg))
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        if dataclasses.is_dataclass(value):
+            yield from _choices(value, f"{prefix}{f.name}.")
+        elif typing.get_origin(hints[f.name]) is typing.Literal:
+            yield prefix + f.name, value, typing.get_args(hints[f.name])
+
+
 def _problem(name: str, value) -> str | None:
     """What is wrong with one setting's ``value``, in words (``must be ...``), or None."""
     if name in RULES:
@@ -119,6 +132,15 @@ def check_setting(name: str, value, flag: str | None = None) -> None:
         raise ValueError(f"{flag or flag_name(name)} {problem}, got {value!r}")
 
 
+def check_choices(cfg: TrainConfig) -> None:
+    """Raise ValueError unless every setting with named choices (a ``Literal`` type) holds one of them."""
+    for name, value, allowed in _choices(cfg):
+        if value not in allowed:
+            raise ValueError(
+                f"{flag_name(name)} must be one of {', '.join(map(str, allowed))}, got {value!r}"
+            )
+
+
 def validate(cfg: TrainConfig) -> TrainConfig:
     """Check every setting of ``cfg`` before anything is trained; returns ``cfg``.
 
@@ -128,6 +150,7 @@ def validate(cfg: TrainConfig) -> TrainConfig:
     in training."""
     for name, value in _settings(cfg):
         check_setting(name, value)
+    check_choices(cfg)
     if cfg.total_iterations < 1:
         raise ValueError(
             f"--static-iterations + --dynamic-iterations must be at least 1, got {cfg.total_iterations}"

@@ -94,7 +94,8 @@ def physics_from(
 
     ``moving`` [N] bool: the Gaussians above the freeze threshold (default: from ``state``); the still
     codes of ``still.py`` then apply on top of it. With ``extrapolation.hold_surface`` a Gaussian that
-    paints a still surface stops at the first step that would take it off that surface. ``start``:
+    paints a still surface holds still (``surface_painters="hold"``) or stops at the first step that
+    would take it off that surface (``"edge"``). ``start``:
     ``model.deform(t0)`` where the caller has it.
     """
     cfg = model.cfg
@@ -105,7 +106,11 @@ def physics_from(
     surface = None
     if cfg.extrapolation.hold_surface and moving is not None and t > t0:
         surface = _surface_painters(model, state, means, moving)
-        stopped = torch.zeros_like(moving)  # painters stopped so far
+        if surface is not None and cfg.extrapolation.surface_painters == "hold":
+            moving = moving.clone()
+            moving[surface.rows] = False  # held at their t0 state below
+            surface = None
+        stopped = torch.zeros_like(moving)  # painters stopped so far ("edge")
     span = t - t0
     n = num_substeps(span, model.dt_max) if span else 0
     h = span / max(n, 1)
