@@ -85,25 +85,15 @@ def flag_name(name: str) -> str:
 
 
 def _settings(cfg, prefix: str = ""):
-    """``(dotted name, value)`` of every leaf setting of a (nested) config dataclass."""
+    """``(dotted name, value, type)`` of every leaf setting of a (nested) config dataclass (a config.json
+    is read without its types: ``"method": "tarce"`` loads, so the type is checked here)."""
+    hints = typing.get_type_hints(type(cfg))
     for f in dataclasses.fields(cfg):
         value = getattr(cfg, f.name)
         if dataclasses.is_dataclass(value):
             yield from _settings(value, f"{prefix}{f.name}.")
         else:
-            yield prefix + f.name, value
-
-
-def _choices(cfg, prefix: str = ""):
-    """``(dotted name, value, allowed values)`` of every setting of a (nested) config dataclass whose
-    type is a ``Literal`` (a config.json is read without its types: ``"method": "tarce"`` loads)."""
-    hints = typing.get_type_hints(type(cfg))
-    for f in dataclasses.fields(cfg):
-        value = getattr(cfg, f.name)
-        if dataclasses.is_dataclass(value):
-            yield from _choices(value, f"{prefix}{f.name}.")
-        elif typing.get_origin(hints[f.name]) is typing.Literal:
-            yield prefix + f.name, value, typing.get_args(hints[f.name])
+            yield prefix + f.name, value, hints[f.name]
 
 
 def _problem(name: str, value) -> str | None:
@@ -134,8 +124,9 @@ def check_setting(name: str, value, flag: str | None = None) -> None:
 
 def check_choices(cfg: TrainConfig) -> None:
     """Raise ValueError unless every setting with named choices (a ``Literal`` type) holds one of them."""
-    for name, value, allowed in _choices(cfg):
-        if value not in allowed:
+    for name, value, kind in _settings(cfg):
+        allowed = typing.get_args(kind)
+        if typing.get_origin(kind) is typing.Literal and value not in allowed:
             raise ValueError(
                 f"{flag_name(name)} must be one of {', '.join(map(str, allowed))}, got {value!r}"
             )
@@ -148,7 +139,7 @@ def validate(cfg: TrainConfig) -> TrainConfig:
     ``--downscale must be a positive integer, got 0``. A step count of 0 where a period is meant, a time
     outside (0, 1], NaN anywhere: each would otherwise end in a ZeroDivisionError or an empty tensor deep
     in training."""
-    for name, value in _settings(cfg):
+    for name, value, _ in _settings(cfg):
         check_setting(name, value)
     check_choices(cfg)
     if cfg.total_iterations < 1:
