@@ -14,12 +14,14 @@ Usage: .venv/bin/python benchmarks/segmentation.py RUN [RUN ...] [--json docs/re
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
 
+from tracegs.data.scene import load_scene
 from tracegs.results import make_record, write_record
 from tracegs.run import load_config
 from tracegs.segment import SegmentConfig, segment_run
@@ -33,6 +35,13 @@ def true_k(data: Path) -> int | None:
     None without gt/motion.json (a capture with foreground masks only: then K is chosen, --auto-k)."""
     segment_of, _ = merged_parts(data / "gt" / "motion.json")
     return len(set(segment_of.values())) if segment_of else None
+
+
+def scene_name(data: Path) -> str:
+    """The scene's name as its generator wrote it (``scene`` in transforms_train.json), else the folder's."""
+    meta = data / "transforms_train.json"
+    name = json.loads(meta.read_text()).get("scene") if meta.is_file() else None
+    return name or data.name.split("_")[0]
 
 
 SHOWN = ("ap", "pq", "f1", "miou")
@@ -72,8 +81,11 @@ def main() -> None:
     for run in args.runs:
         cfg = load_config(run / "config.json")
         data = Path(cfg.data)
-        scene = data.name.split("_")[0]
+        scene = scene_name(data)
         k = true_k(data)
+        camera = load_scene(data, "train", cfg.downscale).frames[0].camera
+        size = f"{camera.width}x{camera.height} px" if camera.width != camera.height else f"{camera.width} px"
+        trained = f"`--preset {cfg.preset}`, {size}"
         flow = SegmentConfig(features="flow")
         started = time.perf_counter()
         if k is None:  # foreground masks only (Panoptic): K chosen, the flow baseline with the same K
@@ -82,7 +94,7 @@ def main() -> None:
             rows += rows_of(scene, "TRACE", "auto", given)
             rows += rows_of(scene, "DefGS flow", "same", segment_run(run, k=given["k"], settings=flow))
             figure(run, args.figures / f"{scene}.png", given["time"], [given["time"]])
-            notes.append(f"{scene}: foreground / background only, auto-K {given['k']}.")
+            notes.append(f"{scene} ({trained}): foreground / background only, auto-K {given['k']}.")
             continue
         segment_run(run, time_=1.0, k=k, score=False)  # the future strip of the figure
         auto = segment_run(run, auto_k=True, out=run / "segment-auto")
@@ -107,7 +119,7 @@ def main() -> None:
         figure(run, args.figures / f"{scene}.png", given["time"], [given["time"], 1.0])
         merged = given["ground_truth"]["merged"]
         notes.append(
-            f"{scene}: K = {k}" + (f" ({'; '.join(', '.join(g) for g in merged)} merged)" if merged else "")
+            f"{scene} ({trained}): K = {k}" + (f" ({'; '.join(', '.join(g) for g in merged)} merged)" if merged else "")
             + f", auto-K {auto['k']}; segment {given['seconds']['segment']:.1f} s, scoring {given['seconds']['score']:.0f} s."
         )  # fmt: skip
     columns = ["scene", "method", "K", *(f"{m} {tag}" for tag in ("train", "future") for m in SHOWN)]
@@ -126,21 +138,23 @@ def main() -> None:
             title="Motion segmentation (the paper's Table 3 protocol)",
             columns=columns,
             notes=(
-                "Runs of `tracegs train --preset cpu-fast` (seed 0): the five 128 px scenes of `tracegs synth`, "
-                "and CMU Panoptic basketball (`--downscale 4 --t-train-end 0.75`). Every image with a mask is "
+                "Runs of `tracegs train` (seed 0) on scenes of `tracegs synth` and, where given, CMU Panoptic "
+                "basketball (`--t-train-end 0.75`); each scene's preset and image size are in its sentence below. "
+                "Every image with a mask is "
                 "scored: on the synthetic scenes train (12 cameras) and val (3 held-out cameras) at t <= 0.763, "
                 "the future all 15 cameras at t > 0.763; each predicted segment against the ground truth's, the "
                 "background one segment in both, no segment ignored (`--ignore-pixels 0`). Features: the paper's "
                 "(|v_bar|, v_bar, |w|, w/|w|) of the rigid motion fitted to f_trd's particle velocities of each "
                 "Gaussian's 24 nearest neighbours (`--settings.twist-neighbours`), K-means, then three rounds in "
                 "which each Gaussian joins the segment whose rigid motion over the span best explains its own "
-                "(docs/SEGMENTATION.md, step 4; `TRACE, K-means alone`: without them). The runs mark static "
+                "(docs/SEGMENTATION.md, step 4; started from K-means on the weighted features and on each feature "
+                "group alone, the partition of lowest rigid cost kept; `TRACE, K-means alone`: K-means on the "
+                "weighted features, no refinement). The runs mark static "
                 "Gaussians with a margin of 5 spacings round what moves (`stage2.static_margin`). The DefGS-flow "
                 "baseline clusters the same runs' f_defo displacements over the training span (DefGS's field, "
-                "trained here beside f_trd), refined the same way (`DefGS flow, K-means alone`: without); with one moving part all find it. Panoptic: its seg/ masks are foreground "
+                "trained here beside f_trd), refined the same way from its one group (`DefGS flow, K-means alone`: without); with one moving part all find it. Panoptic: its seg/ masks are foreground "
                 "/ background of the training cameras, so only that is scored (not the paper's per-player "
-                "protocol), and the `cpu-fast` run does not reconstruct the players (issue of real captures): "
-                "its moving segment is a few Gaussians. "
+                "protocol). "
                 + " ".join(notes)
                 + (f" {args.note}" if args.note else "")
                 + " Precision and recall of every row: each run's segment.json."

@@ -31,17 +31,21 @@ class Segmentation:
     """With ``--auto-k``: one entry per K tried, ``{"k", "rigid_residual"}`` (``rigid_residual``)."""
 
 
-def feature_matrix(features: MotionFeatures, rows: np.ndarray, normalise: str) -> np.ndarray:
-    """[M, F] the weighted feature groups of the Gaussians ``rows``; with ``normalise="group"`` each group
-    is first scaled to unit RMS (about its mean) over these Gaussians, so a weight is a share of the
-    distance whatever the group's units."""
+def feature_matrix(
+    features: MotionFeatures, rows: np.ndarray, normalise: str, only: str | None = None
+) -> np.ndarray:
+    """[M, F] the weighted feature groups of the Gaussians ``rows`` (``only``: that one group alone);
+    with ``normalise="group"`` each group is first scaled to unit RMS (about its mean) over these
+    Gaussians, so a weight is a share of the distance whatever the group's units."""
     columns = []
     for name, group in features.groups.items():
+        if only is not None and name != only:
+            continue
         g = group[rows]
         if normalise == "group":
             spread = np.sqrt(((g - g.mean(0)) ** 2).sum(1).mean())
             g = g / max(spread, 1e-12)
-        columns.append(features.weights[name] * g)
+            columns.append((1.0 if only else features.weights[name]) * g)
     return np.concatenate(columns, axis=1)
 
 
@@ -188,17 +192,65 @@ def choose_k(features: MotionFeatures, settings: SegmentConfig, with_labels: boo
 
 def _partition(features: MotionFeatures, settings: SegmentConfig, k: int) -> np.ndarray:
     """[N] labels of ``k`` segments: the static group (-1 here, when there is one and k > 1), K-means
-    on the features of the others, the smoothing and the one-piece rule."""
+    on the features of the others, the smoothing and the one-piece rule, the refinement; from each of
+    ``starts`` K-means partitions, the refined one whose segments' rigid motions explain the Gaussians
+    best (``partition_cost``)."""
     static = features.static
     has_static = bool(static.any()) and k > 1  # K = 1: one segment, the static Gaussians included
-    labels = _labels(features, settings, np.flatnonzero(~static), k - int(has_static))
-    if has_static:
-        labels = np.where(static, -1, labels)
-    labels = _tidy(_ordered(labels), features, settings, has_static)
-    if settings.refine_iterations > 0:
-        labels = refine(labels, features, settings, has_static)
-        labels = _tidy(labels, features, settings, has_static)
-    return np.where(labels == 0, -1, labels) if has_static else labels
+    best, best_cost = None, np.inf
+    candidates = starts(features, settings)
+    for only in candidates:
+        labels = _labels(features, settings, np.flatnonzero(~static), k - int(has_static), only)
+        if has_static:
+            labels = np.where(static, -1, labels)
+        labels = _tidy(_ordered(labels), features, settings, has_static)
+        if settings.refine_iterations > 0:
+            labels = refine(labels, features, settings, has_static)
+            labels = _tidy(labels, features, settings, has_static)
+        cost = partition_cost(labels, features, has_static) if len(candidates) > 1 else 0.0
+        if cost < best_cost:
+            best, best_cost = labels, cost
+    return np.where(best == 0, -1, best) if has_static else best
+
+
+def starts(features: MotionFeatures, settings: SegmentConfig) -> list[str | None]:
+    """The K-means partitions the refinement starts from: the weighted features (None) and, with
+    ``settings.starts == "groups"`` and the refinement on, each feature group alone. K-means in one
+    space can settle where two parts' motions differ in one group only (a seat and a backrest turning
+    about one hinge at 0.76 and 0.91 rad/s) and the refinement, a local descent, keeps that split; its
+    rigid cost over the span tells the partitions apart without labels."""
+    if settings.starts != "groups" or settings.refine_iterations <= 0 or len(features.groups) < 2:
+        return [None]
+    return [None, *(name for name in features.groups if name != "position")]
+
+
+def partition_cost(labels: np.ndarray, features: MotionFeatures, has_static: bool) -> float:
+    """How badly the segments' rigid motions explain the moving Gaussians of ``labels`` (0 .. K-1, 0 the
+    static group when ``has_static``): each Gaussian's ``rigid_costs`` for its own segment, trajectory
+    and velocity each over its mean over the moving Gaussians, averaged weighted by opacity."""
+    scales = _scales(features)
+    moving = ~features.static
+    k = int(labels.max()) + 1
+    if scales is None or k < 2 or not moving.any():
+        return 0.0
+    w = features.opacity
+    cost_x, cost_u = rigid_costs(labels, k, features.trajectories, features.velocities, features.positions,
+                                 w, static_first=has_static)  # fmt: skip
+    own = np.arange(len(labels)), labels
+    cost = cost_x[own] / scales[0] + cost_u[own] / scales[1]
+    return float((w * cost)[moving].sum() / max(w[moving].sum(), 1e-12))
+
+
+def _scales(features: MotionFeatures) -> tuple[float, float] | None:
+    """(mean displacement over the span, mean speed) of the moving Gaussians, opacity-weighted: the units
+    of the refinement's two costs (None when nothing moves)."""
+    traj, u, w = features.trajectories, features.velocities, features.opacity
+    moving = ~features.static
+    disp = np.linalg.norm(traj - traj[:1], axis=2).mean(0)
+    total = max(w[moving].sum(), 1e-12)
+    scale_x = float((w * disp)[moving].sum() / total)
+    scale_u = float((w * np.linalg.norm(u, axis=1))[moving].sum() / total)
+    return (scale_x, scale_u) if scale_x > 0 and scale_u > 0 else None
 
 
 def refine(
@@ -218,12 +270,11 @@ def refine(
 
     traj, u, w = features.trajectories, features.velocities, features.opacity
     moving = ~features.static
-    disp = np.linalg.norm(traj - traj[:1], axis=2).mean(0)
-    scale_x = float((w * disp)[moving].sum() / max(w[moving].sum(), 1e-12))
-    scale_u = float((w * np.linalg.norm(u, axis=1))[moving].sum() / max(w[moving].sum(), 1e-12))
+    scales = _scales(features)
     k = int(labels.max()) + 1
-    if k < 2 or scale_x <= 0 or scale_u <= 0:
+    if k < 2 or scales is None:
         return labels
+    scale_x, scale_u = scales
     nb = min(settings.smooth_neighbours + 1, len(labels))
     _, nn = cKDTree(features.positions).query(features.positions, nb)
     nn = nn.reshape(len(labels), nb)
@@ -293,11 +344,14 @@ def _tidy(
     return connected(labels, features.positions, settings.smooth_neighbours, settings.piece_share, keep)
 
 
-def _labels(features: MotionFeatures, settings: SegmentConfig, moving: np.ndarray, k: int) -> np.ndarray:
-    """[N] K-means label of the moving Gaussians into ``k`` clusters (0 elsewhere)."""
+def _labels(
+    features: MotionFeatures, settings: SegmentConfig, moving: np.ndarray, k: int, only: str | None = None
+) -> np.ndarray:
+    """[N] K-means label of the moving Gaussians into ``k`` clusters (0 elsewhere), on the weighted
+    features or on the group ``only``."""
     labels = np.zeros(len(features.static), dtype=np.int64)
     if len(moving) and k >= 1:
-        matrix = feature_matrix(features, moving, settings.normalise)
+        matrix = feature_matrix(features, moving, settings.normalise, only)
         labels[moving] = kmeans(matrix, k, settings.seed)
     return labels
 

@@ -47,6 +47,9 @@ class SegmentConfig:
     """Rounds in which each Gaussian joins the segment whose rigid motion (over the training span, and
     its twist at the feature time) best explains its own, averaged over its ``smooth_neighbours``
     nearest neighbours (0: off; the K-means labels as they are)."""
+    starts: Literal["groups", "features"] = "groups"
+    """The K-means partitions the refinement starts from, the one of lowest rigid cost kept: ``groups``,
+    the weighted features and each feature group alone; ``features``, the weighted features only."""
     k_max: int = 8
     """Largest K that ``--auto-k`` tries (segments, the static group counted)."""
     rigid_tolerance: float = 0.02
