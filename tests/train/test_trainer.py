@@ -7,6 +7,7 @@ import math
 import pytest
 import torch
 
+import tracegs
 from tracegs.config import PRESETS, apply_overrides, make_config
 from tracegs.extrapolate import ExtrapolationState, gaussians_at
 from tracegs.run import load_run
@@ -103,7 +104,8 @@ def test_a_failed_calibration_keeps_the_last_steps(tiny_scene, tmp_path, monkeyp
     resumed = Trainer(cfg, progress=False)
     assert resumed.step == cfg.total_iterations
     assert resumed.train()["iterations"] == cfg.total_iterations  # calibrates and writes the summary
-    assert (tmp_path / "run" / "summary.json").is_file()
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["tracegs"] == tracegs.__version__ and "cores" in summary["machine"]
 
 
 def test_resume_refuses_a_checkpoint_trained_with_other_settings(tiny_scene, tmp_path):

@@ -6,7 +6,9 @@ from __future__ import annotations
 import json
 import math
 
+from .. import __version__
 from ..render.rendering import resolve_backend
+from ..results import current_commit, machine_description
 
 
 def stage(trainer) -> str:
@@ -50,7 +52,8 @@ def describe(trainer) -> str:
 
 
 def summary(trainer) -> dict:
-    """What ``summary.json`` holds: the run's size, time, what the calibration chose, per-part timings."""
+    """What ``summary.json`` holds: the run's size, time, what the calibration chose, per-part timings,
+    and what trained it (the tracegs version, its git commit when run from a checkout, the machine)."""
     steps, state = max(trainer.step, 1), trainer.extrapolation
     return {
         "method": trainer.cfg.method,
@@ -70,4 +73,7 @@ def summary(trainer) -> dict:
         "device": str(trainer.device),
         "threads": trainer.threads.changes if trainer.threads else [],
         "rasteriser": resolve_backend(trainer.cfg.backend, trainer.device),
+        "tracegs": __version__,
+        "commit": current_commit(),
+        "machine": machine_description(),
     }
