@@ -5,7 +5,7 @@ documented."""
 from __future__ import annotations
 
 import json
-from types import SimpleNamespace
+from types import MethodType, SimpleNamespace
 
 import numpy as np
 import pytest
@@ -14,6 +14,7 @@ import torch
 from tracegs.data.frames import DatasetError
 from tracegs.data.scene import load_scene
 from tracegs.data.synth import part_transforms, synthesize
+from tracegs.models.trace import TraceModel
 from tracegs.segment.masks import colour_image, colours, overlay, render_labels
 from tracegs.segment.truth import find_ground_truth, merged_parts
 
@@ -38,8 +39,16 @@ def gaussians_of_the_parts(root, t: float):
         "quats": torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
         "scales": torch.full((n, 3), float(np.log(0.01))),
     }
-    model = SimpleNamespace(gaussians={"opacities": torch.zeros(n)}, cfg=SimpleNamespace(backend="auto"))
-    return model, gaussians, torch.tensor(parts - 1)
+    return stand_in_model(n), gaussians, torch.tensor(parts - 1)
+
+
+def stand_in_model(n: int, near: float = 0.01) -> SimpleNamespace:
+    """A stand-in for a trained model of ``n`` Gaussians (opacity 0.5) with ``TraceModel.render``, the
+    near plane ``near`` and the default backend."""
+    gaussians = {"opacities": torch.zeros(n), "sh0": torch.zeros(n, 1, 3), "shN": torch.zeros(n, 0, 3)}
+    model = SimpleNamespace(gaussians=gaussians, cfg=SimpleNamespace(backend="auto"), _near=near)
+    model.render = MethodType(TraceModel.render, model)
+    return model
 
 
 def test_future_masks_cover_the_parts_ground_truth_positions(slider):
@@ -74,6 +83,26 @@ def test_masks_follow_the_motion(slider):
     at_start = render_labels(model, g_start, labels, 3, frame.camera)[0]
     carriage = gt == 2
     assert (at_end[carriage] == 2).mean() > (at_start[carriage] == 2).mean() + 0.2
+
+
+def test_masks_are_drawn_with_the_runs_near_plane(slider):
+    """A capture's run draws nothing nearer its cameras than its near plane (``capture``: 0.6, for
+    cameras among the walls); its masks neither. A still Gaussian 0.3 in front of the camera covers
+    the view under the rasteriser's default 0.01, and is culled under the run's plane."""
+    frame = [f for f in load_scene(slider, "test").frames if f.time == 1.0][0]
+    _, g, labels = gaussians_of_the_parts(slider, 1.0)
+    camera = frame.camera
+    ahead = camera.center + 0.3 * torch.linalg.inv(camera.viewmat[:3, :3])[:, 2]  # 0.3 along the view
+    g = {"means": torch.cat([g["means"], ahead[None].float()]), "quats": torch.cat([g["quats"], g["quats"][:1]]),
+         "scales": torch.cat([g["scales"], torch.full((1, 3), float(np.log(0.5)))])}  # fmt: skip
+    labels = torch.cat([labels, torch.tensor([0])])
+    truth = find_ground_truth(slider).read(frame)
+    for near, covered in ((0.01, True), (0.6, False)):
+        model = stand_in_model(len(labels), near)
+        model.gaussians["opacities"][-1] = 10.0  # opaque
+        pred = render_labels(model, g, labels, 3, camera)[0]
+        carriage = truth == 2
+        assert ((pred[carriage] == 2).mean() < 0.1) == covered, near
 
 
 def test_static_and_alike_parts_merge(tmp_path):

@@ -276,12 +276,20 @@ class TraceModel(nn.Module):
         return image if self.camera_colour is None else self.camera_colour(image, camera_id)
 
     def render(
-        self, state: dict[str, torch.Tensor], camera, sh_degree: int, background: torch.Tensor, rows=None
+        self,
+        state: dict[str, torch.Tensor],
+        camera,
+        sh_degree: int,
+        background: torch.Tensor | None,
+        rows=None,
+        colors: torch.Tensor | None = None,
     ):
         """Rasterise Gaussians whose geometry is ``state`` (means, quats, log-scales) from ``camera``;
-        ``rows``: only those Gaussians (indices)."""
+        ``rows``: only those Gaussians (indices); ``colors``: [N, 3] drawn instead of their SH colours
+        (e.g. segment labels; ``sh_degree`` then unused). Every image of the run goes through here,
+        so all are drawn with its near plane and backend."""
         g = self.gaussians
-        sh = torch.cat([g["sh0"], g["shN"]], dim=1)
+        sh = torch.cat([g["sh0"], g["shN"]], dim=1) if colors is None else colors
         opacities = torch.sigmoid(g["opacities"])
         if rows is not None:
             state = {k: state[k][rows] for k in ("means", "quats", "scales")}
@@ -296,7 +304,7 @@ class TraceModel(nn.Module):
             camera.K,
             camera.width,
             camera.height,
-            sh_degree=sh_degree,
+            sh_degree=sh_degree if colors is None else None,
             background=background,
             near_plane=self._near,
             backend=self.cfg.backend,

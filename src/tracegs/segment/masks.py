@@ -12,7 +12,6 @@ import numpy as np
 import torch
 
 from ..export.palette import colours as colours  # segment's palette is the labelled export's
-from ..render import rasterize
 
 ALPHA_MIN = 0.5
 """Pixels less opaque than this are background."""
@@ -29,14 +28,10 @@ def render_labels(
     one_hot = torch.nn.functional.one_hot(labels.to(dev).long(), max(k, 1)).float()  # [N, K]
     pad = (-one_hot.shape[1]) % 3
     one_hot = torch.nn.functional.pad(one_hot, (0, pad))
-    opacity = torch.sigmoid(model.gaussians["opacities"])
-    scales = torch.exp(gaussians["scales"])
     weights, alpha = [], None
     for c in range(0, one_hot.shape[1], 3):
-        out = rasterize(
-            gaussians["means"], gaussians["quats"], scales, opacity, one_hot[:, c : c + 3].contiguous(),
-            camera.viewmat, camera.K, camera.width, camera.height, backend=model.cfg.backend,
-        )  # fmt: skip
+        # the model's own render (its near plane, its backend), with label colours on no background
+        out = model.render(gaussians, camera, 0, None, colors=one_hot[:, c : c + 3].contiguous())
         weights.append(out.image)
         alpha = out.alpha
     weight = torch.cat(weights, dim=-1)[..., :k].cpu().numpy()  # [H, W, K]
