@@ -7,10 +7,13 @@ import json
 
 import numpy as np
 import pytest
+import torch
 from plyfile import PlyData
 
 from tracegs.cli import main
 from tracegs.config import make_config
+from tracegs.data.cameras import scene_extent_from_cameras
+from tracegs.data.scene import load_scene
 from tracegs.data.synth import synthesize
 from tracegs.segment import SegmentConfig, SegmentError, load_segments, segment_run
 from tracegs.train.trainer import Trainer
@@ -101,3 +104,26 @@ def test_ignore_pixels_reaches_the_scores(trained, tmp_path):
         scores[ignore] = json.loads((tmp_path / f"{ignore}.json").read_text())["scores"]["training_times"]
     assert scores[0]["recall"] > 0 and np.isfinite(scores[0]["miou"])
     assert scores[24 * 24 + 1]["recall"] == 0 and np.isnan(scores[24 * 24 + 1]["miou"])
+
+
+def test_the_default_static_threshold_is_the_one_training_marks_with(trained, tmp_path, monkeypatch):
+    """Without a freeze threshold from the calibration, the static group is what f_defo moves less
+    than ``stage2.static_displacement`` times the scene extent (its unit), as training marks it."""
+    from tracegs.segment import command
+
+    scene, run = trained
+    real = command.load_run
+
+    def no_freeze(*args, **kwargs):
+        loaded = real(*args, **kwargs)
+        loaded.state.freeze_threshold = 0.0
+        return loaded
+
+    monkeypatch.setattr(command, "load_run", no_freeze)
+    report = segment_run(run, k=2, score=False, out=tmp_path / "seg")
+    centers = torch.stack([f.camera.center for f in load_scene(scene, "train").frames])
+    extent = scene_extent_from_cameras(centers)
+    assert extent > 2
+    assert report["static_threshold"] == pytest.approx(
+        real(run, "cpu").config.stage2.static_displacement * extent
+    )

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..data.cameras import scene_extent_from_cameras
 from ..data.scene import available_splits, load_scene
 from ..export.ply import write_gaussians
 from ..export.render import render_gaussians, sweep, write_video
@@ -62,7 +63,9 @@ def segment_run(
     loaded = load_run(run, device)
     model, state, cfg = loaded.model, loaded.state, loaded.config
     data = run_data(cfg, data)
-    features = motion_features(model, state, settings)
+    frames = load_scene(data, "train", cfg.downscale).frames
+    extent = scene_extent_from_cameras(torch.stack([f.camera.center for f in frames]))
+    features = motion_features(model, state, settings, extent)
     seg = segment(features, settings, None if auto_k else k)
     seconds_segment = time.perf_counter() - started
     run = Path(run)

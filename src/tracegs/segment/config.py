@@ -37,7 +37,7 @@ class SegmentConfig:
     static_displacement: float | None = None
     """Gaussians that f_defo moves less than this (scene units) over the training span form the static
     group; default: the run's freeze threshold (chosen on its training images), else
-    ``stage2.static_displacement``."""
+    ``stage2.static_displacement`` times the scene extent, as training marks them."""
     smooth_neighbours: int = 8
     """Labels are smoothed by a majority vote over this many nearest neighbours (0: off)."""
     piece_share: float = 0.25

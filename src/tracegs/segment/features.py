@@ -42,9 +42,10 @@ class SegmentError(ValueError):
 
 
 @torch.no_grad()
-def motion_features(model, state, settings: SegmentConfig) -> MotionFeatures:
+def motion_features(model, state, settings: SegmentConfig, extent: float = 1.0) -> MotionFeatures:
     """Deform the canonical Gaussians to the last training time with f_defo, query f_trd there and build
-    the features of ``settings.features``; the static group from f_defo's displacements."""
+    the features of ``settings.features``; the static group from f_defo's displacements. ``extent``:
+    the scene extent of the training cameras, the unit of ``stage2.static_displacement``."""
     if model.deformation is None:
         raise SegmentError("the run has no f_defo (a static or 'no f_defo' run): nothing tells what moves")
     t = float(state.t_max)
@@ -56,7 +57,7 @@ def motion_features(model, state, settings: SegmentConfig) -> MotionFeatures:
     moved = (traj - traj[:1]).norm(dim=-1).amax(0)  # f_defo's largest displacement from t = 0
     threshold = settings.static_displacement
     if threshold is None:
-        threshold = state.freeze_threshold or model.cfg.stage2.static_displacement
+        threshold = state.freeze_threshold or model.cfg.stage2.static_displacement * extent
     static = moved <= threshold
     if model.static_mask is not None:
         static |= model.static_mask.cpu()
