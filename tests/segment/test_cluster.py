@@ -4,6 +4,7 @@ choice of K without labels finds their count."""
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from tracegs.segment.cluster import (
     rigid_residual,
     segment,
     smooth,
+    starts,
 )
 from tracegs.segment.config import SegmentConfig
 from tracegs.segment.features import MotionFeatures, flow_groups, physics_groups
@@ -248,3 +250,18 @@ def test_the_refinement_starts_from_each_feature_group_and_keeps_the_most_rigid_
     assert agreement(weighted, truth) < 0.8
     seg = segment(features, one_round, k=2).labels
     assert agreement(seg, truth) > 0.99
+
+
+def test_a_constant_feature_group_is_no_start_and_a_start_short_of_segments_loses():
+    """A group the same on every moving Gaussian (w/|w| of parts that only translate, say) gives
+    K-means nothing to split: it is not a start. And a start whose partition kept fewer segments than
+    asked never wins on its (lower) rigid cost."""
+    features, truth = hinged_pair()
+    features.groups["axis"] = np.zeros_like(features.groups["axis"])
+    assert "axis" not in starts(features, SegmentConfig())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # K-means would warn of fewer distinct clusters than asked
+        seg = segment(features, SegmentConfig(), k=2)
+    assert seg.k == 2 and agreement(seg.labels, truth) > 0.99
+    one = np.zeros_like(truth)
+    assert partition_cost(one, features, False) > partition_cost(truth, features, False)

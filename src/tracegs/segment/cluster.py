@@ -197,7 +197,7 @@ def _partition(features: MotionFeatures, settings: SegmentConfig, k: int) -> np.
     best (``partition_cost``)."""
     static = features.static
     has_static = bool(static.any()) and k > 1  # K = 1: one segment, the static Gaussians included
-    best, best_cost = None, np.inf
+    best, best_key = None, None
     candidates = starts(features, settings)
     for only in candidates:
         labels = _labels(features, settings, np.flatnonzero(~static), k - int(has_static), only)
@@ -207,9 +207,11 @@ def _partition(features: MotionFeatures, settings: SegmentConfig, k: int) -> np.
         if settings.refine_iterations > 0:
             labels = refine(labels, features, settings, has_static)
             labels = _tidy(labels, features, settings, has_static)
+        # a start that kept fewer segments than asked loses to one that kept them, whatever its cost
         cost = partition_cost(labels, features, has_static) if len(candidates) > 1 else 0.0
-        if cost < best_cost:
-            best, best_cost = labels, cost
+        key = (-len(np.unique(labels)), cost)
+        if best_key is None or key < best_key:
+            best, best_key = labels, key
     return np.where(best == 0, -1, best) if has_static else best
 
 
@@ -221,7 +223,12 @@ def starts(features: MotionFeatures, settings: SegmentConfig) -> list[str | None
     rigid cost over the span tells the partitions apart without labels."""
     if settings.starts != "groups" or settings.refine_iterations <= 0 or len(features.groups) < 2:
         return [None]
-    return [None, *(name for name in features.groups if name != "position")]
+    moving = ~features.static
+    return [None] + [
+        name
+        for name, group in features.groups.items()
+        if name != "position" and moving.any() and np.ptp(group[moving], axis=0).max() > 0  # not constant
+    ]
 
 
 def partition_cost(labels: np.ndarray, features: MotionFeatures, has_static: bool) -> float:
@@ -231,7 +238,7 @@ def partition_cost(labels: np.ndarray, features: MotionFeatures, has_static: boo
     scales = _scales(features)
     moving = ~features.static
     k = int(labels.max()) + 1
-    if scales is None or k < 2 or not moving.any():
+    if scales is None or not moving.any():
         return 0.0
     w = features.opacity
     cost_x, cost_u = rigid_costs(labels, k, features.trajectories, features.velocities, features.positions,
