@@ -265,3 +265,11 @@ def test_a_constant_feature_group_is_no_start_and_a_start_short_of_segments_lose
     assert seg.k == 2 and agreement(seg.labels, truth) > 0.99
     one = np.zeros_like(truth)
     assert partition_cost(one, features, False) > partition_cost(truth, features, False)
+
+
+def test_raw_units_cluster_too():
+    """``--settings.normalise none`` weighs the groups in their own units, and still recovers the parts
+    of the synthetic scene (their motions differ in every unit)."""
+    features, truth = synthetic_parts()
+    seg = segment(features, SegmentConfig(normalise="none"), k=len(PARTS))
+    assert seg.k == len(PARTS) and agreement(seg.labels, truth) > 0.95

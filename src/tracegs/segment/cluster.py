@@ -45,7 +45,7 @@ def feature_matrix(
         if normalise == "group":
             spread = np.sqrt(((g - g.mean(0)) ** 2).sum(1).mean())
             g = g / max(spread, 1e-12)
-            columns.append((1.0 if only else features.weights[name]) * g)
+        columns.append((1.0 if only else features.weights[name]) * g)
     return np.concatenate(columns, axis=1)
 
 
