@@ -237,11 +237,10 @@ def partition_cost(labels: np.ndarray, features: MotionFeatures, has_static: boo
     and velocity each over its mean over the moving Gaussians, averaged weighted by opacity."""
     scales = _scales(features)
     moving = ~features.static
-    k = int(labels.max()) + 1
     if scales is None or not moving.any():
         return 0.0
     w = features.opacity
-    cost_x, cost_u = rigid_costs(labels, k, features.trajectories, features.velocities, features.positions,
+    cost_x, cost_u = rigid_costs(labels, int(labels.max()) + 1, features.trajectories, features.velocities, features.positions,
                                  w, static_first=has_static)  # fmt: skip
     own = np.arange(len(labels)), labels
     cost = cost_x[own] / scales[0] + cost_u[own] / scales[1]

@@ -63,8 +63,8 @@ def segment_run(
     loaded = load_run(run, device)
     model, state, cfg = loaded.model, loaded.state, loaded.config
     data = run_data(cfg, data)
-    frames = load_scene(data, "train", cfg.downscale).frames
-    extent = scene_extent_from_cameras(torch.stack([f.camera.center for f in frames]))
+    train = load_scene(data, "train", cfg.downscale)
+    extent = scene_extent_from_cameras(torch.stack([f.camera.center for f in train.frames]))
     features = motion_features(model, state, settings, extent)
     seg = segment(features, settings, None if auto_k else k)
     seconds_segment = time.perf_counter() - started
@@ -97,7 +97,7 @@ def segment_run(
     labels = torch.as_tensor(seg.labels)
     truth = find_ground_truth(data)
     t_show = features.time if time_ is None else float(time_)
-    background = torch.tensor(load_scene(data, "train").background, device=model.aabb.device)
+    background = torch.tensor(train.background, device=model.aabb.device)
     report["outputs"] = write_outputs(
         model, state, seg, labels, data, cfg.downscale, truth, t_show, out, background
     )
