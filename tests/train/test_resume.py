@@ -393,6 +393,29 @@ def test_first_non_finite_finds_nan_and_inf_and_passes_empty_tensors():
         assert first_non_finite([finite, empty, torch.tensor([[0.0, bad]])]) == 2
 
 
+def test_any_non_finite_sees_every_nan_and_inf_and_changes_nothing():
+    from tracegs.train.guard import NonFinite, any_non_finite, check_step
+
+    finite = [torch.tensor([1.0, -3e38, 2.5e-38]), torch.zeros(0, 3), torch.randn(64, 64)]
+    copies = [t.clone() for t in finite]
+    assert not any_non_finite(finite) and not any_non_finite([])
+    assert all(torch.equal(a, b) for a, b in zip(finite, copies, strict=True))  # the check writes nothing
+    for bad in (float("nan"), float("inf"), -float("inf")):
+        for index in range(3):
+            tensors = [t.clone() for t in finite]
+            tensors[index] = torch.tensor([[0.0, bad]]) if index == 1 else tensors[index]
+            if index != 1:
+                tensors[index].view(-1)[-1] = bad
+            assert any_non_finite(tensors)
+            assert any_non_finite([t.bfloat16() for t in tensors])  # (the fallback's dtype)
+    params = [torch.nn.Parameter(torch.ones(3))]
+    params[0].grad = torch.tensor([0.0, float("nan"), 1.0])
+    with pytest.raises(NonFinite, match="gradient"):
+        check_step(torch.tensor(0.5), params, 7)
+    with pytest.raises(NonFinite, match="loss"):
+        check_step(torch.tensor(float("inf")), params, 7)
+
+
 def test_the_progress_bar_shows_the_stage_loss_and_gaussians(scene, tmp_path, capsys):
     cfg = make_config("tiny", **settings(scene, tmp_path / "run", static_iterations=2, dynamic_iterations=2))
     Trainer(cfg, progress=True).train()

@@ -20,7 +20,14 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from tracegs.models.encoding import encoding_dim, linear_of_parts, positional_encoding, time_column, time_rows
+from tracegs.models.encoding import (
+    encoding_dim,
+    linear_of_parts,
+    positional_encoding,
+    product_of_parts,
+    time_column,
+    time_rows,
+)
 from tracegs.physics.integrate import DynamicsParams, equivalent_from_center
 
 ACTIVATIONS = {"silu": nn.SiLU, "relu": nn.ReLU}
@@ -199,16 +206,24 @@ class DynamicsField(nn.Module):
         The MLP on ``encode(x, t)``, its first layer evaluated part by part (``linear_of_parts``: a
         time shared by all points enters as a bias)."""
         parts = self._input_parts(x, t)
-        first = linear_of_parts(self.mlp[0], parts)
-        features = self.mlp[2:](self.mlp[1](first))
+        own_hidden = None
+        if rates and self.separate_accelerations:
+            # both MLPs read the same encoding: their first layers run as one product, one activation
+            first, own_first = self.mlp[0], self.acceleration_mlp[0]
+            weight = torch.cat([first.weight, own_first.weight])
+            bias = torch.cat([first.bias, own_first.bias])
+            hidden = self.mlp[1](product_of_parts(weight, bias, parts))
+            hidden, own_hidden = hidden.split((first.out_features, own_first.out_features), dim=-1)
+        else:
+            hidden = self.mlp[1](linear_of_parts(self.mlp[0], parts))
+        features = self.mlp[2:](hidden)
         raw = self.head(features)
         start = self._head_rates_start
         if rates and start is not None and self.cfg.detach_acceleration_features:
             raw = torch.cat([raw[:, :start], self.head(features.detach())[:, start:]], dim=-1)
         named = {n: raw[:, self.head_rows(n)] for n in self.head_names if rates or n not in ACCELERATIONS}
-        if rates and self.separate_accelerations:
-            mlp = self.acceleration_mlp
-            own = self.acceleration_head(mlp[2:](mlp[1](linear_of_parts(mlp[0], parts))))
+        if own_hidden is not None:
+            own = self.acceleration_head(self.acceleration_mlp[2:](own_hidden))
             named |= {n: own[:, self.head_rows(n)] for n in self.own_names}
         out = {name: named[name].to(x.dtype) for name in self.slices if name in named}
         for name in ACCELERATIONS:

@@ -21,7 +21,7 @@ def positional_encoding(u: torch.Tensor, num_frequencies: int, include_input: bo
     """
     parts = [u] if include_input else []
     if num_frequencies > 0:
-        freqs = 2.0 ** torch.arange(num_frequencies, dtype=u.dtype, device=u.device)  # [L]
+        freqs = u.new_tensor([2.0**k for k in range(num_frequencies)])  # [L] (exact powers of two)
         angles = u[..., None, :] * freqs[:, None]  # [..., L, D]
         sincos = torch.stack([torch.sin(angles), torch.cos(angles)], dim=-2)  # [..., L, 2, D]
         parts.append(sincos.flatten(-3))
@@ -54,18 +54,26 @@ def linear_of_parts(
     per call, so this saves the [N, E] concatenation and the time's share of the first GEMM (and the
     same again at Deformable 3DGS's skip layer). Equal to ``layer(cat)`` up to float rounding.
     """
-    bias, rows = layer.bias, []
+    return product_of_parts(layer.weight, layer.bias, parts)
+
+
+def product_of_parts(
+    weight: torch.Tensor, bias: torch.Tensor | None, parts: list[tuple[torch.Tensor, slice | torch.Tensor]]
+) -> torch.Tensor:
+    """``linear_of_parts`` with the layer given as its ``weight`` [O, E] and ``bias`` [O] (e.g. two
+    layers on the same input stacked into one product)."""
+    rows = []
     for values, columns in parts:
-        weight = layer.weight[:, columns]
+        part_weight = weight[:, columns]
         if values.shape[0] == 1:
-            bias = torch.nn.functional.linear(values, weight, bias)
+            bias = torch.nn.functional.linear(values, part_weight, bias)
         else:
-            rows.append((values, weight))
+            rows.append((values, part_weight))
     if not rows:  # a single point: every part was folded, the result is the bias row
         return bias
-    (values, weight), *rest = rows
+    (values, part_weight), *rest = rows
     # the bias (with the folded rows) enters the first product (addmm), the other parts add theirs
-    out = torch.nn.functional.linear(values, weight, None if bias is None else bias.reshape(-1))
-    for values, weight in rest:
-        out = torch.addmm(out, values, weight.t())
+    out = torch.nn.functional.linear(values, part_weight, None if bias is None else bias.reshape(-1))
+    for values, part_weight in rest:
+        out = torch.addmm(out, values, part_weight.t())
     return out

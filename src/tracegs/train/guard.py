@@ -34,12 +34,30 @@ def first_non_finite(tensors: Iterable[torch.Tensor]) -> int | None:
     return None if bool(finite.all()) else int((~finite).nonzero()[0])
 
 
+def any_non_finite(tensors: list[torch.Tensor]) -> bool:
+    """Whether one of ``tensors`` (floating point, on one device) holds a NaN or Inf: one fused pass
+    over all of them where torch has it (GradScaler's check, here with a scale of exactly 1, which
+    leaves every value as it is), else ``first_non_finite``."""
+    if not tensors:
+        return False
+    check = getattr(torch, "_amp_foreach_non_finite_check_and_unscale_", None)
+    if check is not None and len({t.device for t in tensors}) == 1:
+        found = torch.zeros(1, device=tensors[0].device)
+        try:
+            check(tensors, found, torch.ones(1, device=found.device))
+            return bool(found.item())
+        except (RuntimeError, NotImplementedError):  # a dtype or device the fused check does not take
+            pass
+    return first_non_finite(tensors) is not None
+
+
 def check_step(loss: torch.Tensor, parameters: Iterable[torch.Tensor], step: int) -> None:
     """NonFinite when the ``loss`` or a gradient of ``parameters`` holds a NaN or Inf (called between
     the backward pass and the optimiser step, so that nothing is updated from them)."""
-    first = first_non_finite([loss, *(p.grad for p in parameters if p.grad is not None)])
-    if first is not None:
-        raise NonFinite(step, "loss" if first == 0 else "gradient")
+    if not bool(torch.isfinite(loss.detach()).all()):
+        raise NonFinite(step, "loss")
+    if any_non_finite([p.grad for p in parameters if p.grad is not None]):
+        raise NonFinite(step, "gradient")
 
 
 def check_parameters(parameters: Iterable[torch.Tensor], step: int) -> None:
