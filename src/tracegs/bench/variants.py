@@ -81,6 +81,12 @@ OPTIONS = {
     "2 views 8k dynamic": {"stage2.views_per_step": 2, "dynamic_iterations": 8_000},
     "3 views 6k dynamic": {"stage2.views_per_step": 3, "dynamic_iterations": 6_000},
     "4 views 5k dynamic": {"stage2.views_per_step": 4, "dynamic_iterations": 5_000},
+    "half steps": {"dynamic_iterations": 10_000, "densify.refine_stop": 3000},
+    "half steps, field lr x2": {
+        "dynamic_iterations": 10_000,
+        "densify.refine_stop": 3000,
+        "optim.field_lr": 1.6e-3,
+    },
 }
 
 
