@@ -10,8 +10,9 @@ with the same threads. Ratio = measured time / floor. The step's own matrix prod
 dtypes) are also timed replayed alone: what the fields would cost if every other op were free.
 
 The loop runs on a heap that keeps its freed memory (glibc ``mallopt``), as a training's grown heap
-does (0-5 page faults a step); the faults per step are reported. The native RK2 and the PyTorch
-sub-steps are measured in alternate blocks of one process, each row taking its fastest block.
+does (0-5 page faults a step); the faults per step are reported. The kernels (the fused MLP with the
+native RK2, the native RK2 alone, neither) are measured in alternate blocks of one process, each row
+taking its fastest block.
 
 Run it alone on the machine. Usage:
 .venv/bin/python benchmarks/fields_floor.py --run runs/demo/trace [--fields run|bf16|fp32] [--json F]
@@ -22,7 +23,11 @@ from __future__ import annotations
 import argparse
 import ctypes
 import ctypes.util
+import json
+import os
 import resource
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -30,6 +35,7 @@ import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils.flop_counter import FlopCounterMode
 
+from tracegs.models import fused_mlp
 from tracegs.physics import fused
 from tracegs.results import make_record, write_record
 from tracegs.run import load_run
@@ -118,50 +124,93 @@ def gemms_alone_ms(model, t_prime: float, t: float, weights, blocks: int = 6, st
     return best
 
 
+KERNELS = {"fused MLP, native RK2": (True, True), "native RK2": (False, True), "pytorch": (False, False)}
+"""Rows: the field MLPs' fused op (``models/fused_mlp.py``; float32 only) and the native RK2
+(``physics/fused.py``) on or off."""
+
+
+def use_kernels(name: str) -> None:
+    fused_mlp.ENABLED, fused.ENABLED = KERNELS[name]
+
+
 def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]:
-    """Rows for the native RK2 and the PyTorch sub-steps (``physics/fused.py``), measured in alternating
-    blocks of ``steps`` steps: each row's time is its fastest block (the others ran beside whatever else
-    the host did; an A/B in one process cancels the drift between runs)."""
+    """Rows for the kernels of ``KERNELS`` (without the fused MLP in bf16, where it does not apply),
+    measured in alternating blocks of ``steps`` steps: each row's time is its fastest block (the others
+    ran beside whatever else the host did; an A/B in one process cancels the drift between runs)."""
     torch.set_num_threads(threads)
     t_prime, t = 0.55, 0.6
     weights = loss_weights(model, t_prime, t)
+    use_kernels("pytorch")  # (the counter sees ATen's products, not the fused op's own)
     with FlopCounterMode(display=False) as counter:
         fields_step(model, t_prime, t, weights)
     flops = counter.get_total_flops()
-    for _ in range(10):
-        fields_step(model, t_prime, t, weights)
-    best = {True: float("inf"), False: float("inf")}
+    names = [name for name in KERNELS if not (model.bf16 and KERNELS[name][0])]
+    for name in names:
+        use_kernels(name)
+        for _ in range(5):
+            fields_step(model, t_prime, t, weights)
+    best = dict.fromkeys(names, float("inf"))
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-    for block in range(2 * blocks):
-        fused.ENABLED = native = block % 2 == 0
+    for block in range(len(names) * blocks):
+        name = names[block % len(names)]
+        use_kernels(name)
         start = time.perf_counter()
         for _ in range(steps):
             fields_step(model, t_prime, t, weights)
-        best[native] = min(best[native], 1000 * (time.perf_counter() - start) / steps)
-    fused.ENABLED = True
-    faults = (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults) / (2 * blocks * steps)
+        best[name] = min(best[name], 1000 * (time.perf_counter() - start) / steps)
+    use_kernels("fused MLP, native RK2")
+    faults = (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults) / (len(names) * blocks * steps)
     dtype = torch.bfloat16 if model.bf16 else torch.float32
     rate = gemm_rate(dtype)
     floor_ms = 1000 * flops / rate
-    gemms_ms = gemms_alone_ms(model, t_prime, t, weights)
+    use_kernels("pytorch")
+    gemms_ms = gemms_alone_ms(model, t_prime, t, weights)  # (the fused MLP runs its own products)
+    use_kernels("fused MLP, native RK2")
     rows = model.moving_rows
     moving = model.gaussians["means"].shape[0] if rows is None else rows.numel()
     return [
         {
             "threads": threads,
-            "rk2": "native" if native else "pytorch",
+            "kernels": name,
             "dtype": str(dtype).removeprefix("torch."),
             "moving_gaussians": moving,
             "mflop_per_step": round(flops / 1e6, 1),
             "gemm_gflops": round(rate / 1e9, 1),
             "floor_ms": round(floor_ms, 3),
             "gemms_alone_ms": round(gemms_ms, 2),
-            "measured_ms": round(best[native], 2),
-            "ratio": round(best[native] / floor_ms, 1),
+            "measured_ms": round(best[name], 2),
+            "ratio": round(best[name] / floor_ms, 1),
             "page_faults_per_step": round(faults),
         }
-        for native in (True, False)
+        for name in names
     ]
+
+
+ISAS = {
+    "native": {},
+    # an AVX2-only CPU's code paths on this one: ATen's kernels, oneDNN, MKL and the extensions
+    "avx2": {
+        "ATEN_CPU_CAPABILITY": "avx2",
+        "DNNL_MAX_CPU_ISA": "AVX2",
+        "MKL_ENABLE_INSTRUCTIONS": "AVX2",
+        "TRACEGS_MARCH": "x86-64-v3",
+    },
+}
+"""Instruction sets to measure with (``--isa``): each in a process of its own with these variables."""
+
+
+def measure_run(run: Path, fields: list[str]) -> list[dict]:
+    """The rows of every dtype of ``fields`` and 1 and 2 threads for the run's model."""
+    model = load_run(run, "cpu").model
+    as_loaded = model.bf16
+    model.train()
+    for p in model.parameters():
+        p.requires_grad_(True)
+    rows = []
+    for dtype in fields:
+        model.bf16 = as_loaded if dtype == "run" else dtype == "bf16"
+        rows += [row for threads in (1, 2) for row in measure(model, threads)]
+    return rows
 
 
 def main() -> None:
@@ -172,17 +221,25 @@ def main() -> None:
         "--fields", choices=("run", "bf16", "fp32"), nargs="+", default=["run"],
         help="the fields' dtype (rows for each): the run's (as it loads on this CPU), bf16, fp32",
     )  # fmt: skip
+    ap.add_argument(
+        "--isa", choices=tuple(ISAS), nargs="+", default=["native"],
+        help="instruction sets (rows for each): this CPU's, or AVX2 only (as an AVX2 laptop runs; float32)",
+    )  # fmt: skip
+    ap.add_argument("--rows-only", action="store_true", help=argparse.SUPPRESS)  # (a child's JSON rows)
     args = ap.parse_args()
-    model = load_run(args.run, "cpu").model
-    as_loaded = model.bf16
-    model.train()
-    for p in model.parameters():
-        p.requires_grad_(True)
     kept = keep_freed_memory()
+    if args.rows_only:
+        print(json.dumps(measure_run(args.run, args.fields)))
+        return
     rows = []
-    for fields in args.fields:
-        model.bf16 = as_loaded if fields == "run" else fields == "bf16"
-        rows += [row for threads in (1, 2) for row in measure(model, threads)]
+    for isa in args.isa:
+        # an AVX2-only CPU runs the fields in float32 (bf16 without hardware dot products is ~100x slower)
+        fields = ["fp32"] if isa == "avx2" else args.fields
+        command = [sys.executable, __file__, "--run", str(args.run), "--fields", *fields, "--rows-only"]
+        child = subprocess.run(command, env={**os.environ, **ISAS[isa]}, capture_output=True, text=True)
+        if child.returncode != 0:
+            raise SystemExit(f"fields_floor ({isa}) failed:\n{child.stderr}")
+        rows += [{"isa": isa, **row} for row in json.loads(child.stdout.strip().splitlines()[-1])]
     for row in rows:
         print(row)
     if args.json:
@@ -190,7 +247,7 @@ def main() -> None:
             "fields-floor",
             rows,
             f"tracegs demo; python benchmarks/fields_floor.py --run {args.run} --fields {' '.join(args.fields)} "
-            f"--json {args.json}",
+            f"--isa {' '.join(args.isa)} --json {args.json}",
             title="The fields of one stage-2 step against their FLOP floor",
             notes=(
                 "One step's fields (f_defo at t', f_trd, RK2, the acceleration consistency) forward and "
@@ -198,7 +255,8 @@ def main() -> None:
                 "products by torch.utils.flop_counter; floor = those FLOPs at the rate of a 2048^2 matrix "
                 "product in the same dtype and threads; ratio = measured / floor; gemms_alone: the step's "
                 "own matrix products (shapes, strides, dtypes) replayed alone. measured: the fastest of six "
-                "blocks of 20 steps, the native RK2 and the PyTorch sub-steps in alternate blocks. "
+                "blocks of 20 steps, the kernels in alternate blocks (fused MLP: float32 only; gemms_alone: the "
+                "PyTorch layers' products). "
                 f"The heap keeps freed memory (glibc mallopt: {'yes' if kept else 'not available'}), as a "
                 "training's grown heap does. The run: the README demo's (fan, cpu-fast), alone on the "
                 "cores."

@@ -1,4 +1,4 @@
-"""C++/OpenMP extensions (the CPU rasteriser, SSIM, RK2, the HexPlane grid's kernels), built by
+"""C++/OpenMP extensions (the CPU rasteriser, SSIM, RK2, the HexPlane grid's kernels, the fields' MLPs), built by
 ``build_all`` (``tracegs build``, which ``scripts/install.sh`` runs) or on first use.
 
 Each extension is one ``.cpp`` file, JIT-compiled with ``torch.utils.cpp_extension.load`` and
@@ -38,6 +38,12 @@ def supports_flag(flag: str) -> bool:
         return res.returncode == 0
     except (OSError, subprocess.SubprocessError):
         return False
+
+
+def march() -> str:
+    """The extensions' ``-march``: ``TRACEGS_MARCH`` when set (e.g. ``x86-64-v3``, AVX2: a build for a
+    cluster's older nodes, or to measure what an AVX2-only CPU gets), else ``native``."""
+    return os.environ.get("TRACEGS_MARCH", "native")
 
 
 def cpu_tag() -> str:
@@ -110,8 +116,9 @@ class NativeExtension:
     ``what`` names it in warnings ("native CPU rasteriser"), ``fallback`` says what runs instead.
     """
 
-    def __init__(self, name: str, source: Path, what: str, fallback: str):
+    def __init__(self, name: str, source: Path, what: str, fallback: str, cflags: tuple[str, ...] = ()):
         self.name, self.source, self.what, self.fallback = name, Path(source), what, fallback
+        self.cflags = list(cflags)  # after the common flags (a later flag overrides an earlier one)
         self.module = None
         self.error: str | None = None
 
@@ -122,15 +129,19 @@ class NativeExtension:
         cflags = ["-O3", "-ffp-contract=off"]
         # Same float results in forward and backward loops (the rasteriser decides alpha thresholds in
         # both independently) need identical rounding: no FMA contraction, no fast-math.
-        if supports_flag("-march=native"):
-            cflags.append("-march=native")
+        if supports_flag(f"-march={march()}"):
+            cflags.append(f"-march={march()}")
+        cflags += self.cflags
         ldflags = []
         if openmp:
             cflags.append("-fopenmp")
             ldflags.append("-fopenmp")
         # -march=native binaries are CPU specific: key the cache by CPU so that a home directory shared
         # between different machines never loads one built for another (SIGILL, no fallback possible).
-        name = f"{self.name}_{cpu_tag()}" + ("" if openmp else "_serial")
+        tag = (
+            cpu_tag() if march() == "native" else f"{cpu_tag()}_{march().replace('-', '_').replace('.', '_')}"
+        )
+        name = f"{self.name}_{tag}" + ("" if openmp else "_serial")
         build_dir = _build_directory(name)
         if build_dir is not None:
             wait_for_build_lock(build_dir)
@@ -189,13 +200,16 @@ def _ninja_on_path() -> None:
 
 _PACKAGE = Path(__file__).resolve().parent
 EXTENSIONS: dict[str, NativeExtension] = {
-    name: NativeExtension(name, _PACKAGE / source, what, fallback)
-    for name, source, what, fallback in (
+    name: NativeExtension(name, _PACKAGE / source, what, fallback, *flags)
+    for name, source, what, fallback, *flags in (
         ("tracegs_raster_cpu", "render/csrc/raster_cpu.cpp", "native CPU rasteriser",
          "the (much slower) pure-PyTorch reference backend"),
         ("tracegs_ssim_cpu", "render/csrc/ssim_cpu.cpp", "native CPU SSIM", "pytorch-msssim's SSIM"),
         ("tracegs_rk2_cpu", "physics/csrc/rk2_cpu.cpp", "native RK2 integrator", "the PyTorch sub-steps"),
         ("tracegs_hexplane_cpu", "models/csrc/hexplane_cpu.cpp", "native HexPlane kernels", "torch's grid_sample"),
+        # (products, not a forward and a backward that must round alike: fused multiply-adds allowed)
+        ("tracegs_mlp_cpu", "models/csrc/mlp_cpu.cpp", "fused field MLPs", "their PyTorch layers",
+         ("-ffp-contract=fast",)),
     )
 }  # fmt: skip
 """The package's extensions by name; each module that uses one takes it from here."""

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
+from tracegs.models import fused_mlp
 from tracegs.models.encoding import encoding_dim, linear_of_parts, positional_encoding, time_column, time_rows
 from tracegs.models.hexplane import HexPlane, HexPlaneConfig
 from tracegs.physics.so3 import quat_multiply, quat_normalize
@@ -64,14 +65,18 @@ class DeformationHeads(nn.Module):
         self.register_buffer("identity", torch.tensor([1.0, 0.0, 0.0, 0.0]), persistent=False)
 
     def forward(self, h: torch.Tensor, dtype: torch.dtype) -> DeformationOutput:
-        # the three heads as one [N, W] x [W, 10] product: a third of the calls, forward and backward
-        # (the parameters stay three layers, as checkpoints hold them)
+        return self.split(torch.nn.functional.linear(h, *self.stacked()), dtype)
+
+    def stacked(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The three heads as one layer's weight [10, W] and bias [10]: one product instead of three,
+        forward and backward (the parameters stay three layers, as checkpoints hold them)."""
         heads = (self.translation, self.rotation, self.log_scale)
-        weight = torch.cat([head.weight for head in heads])
-        bias = torch.cat([head.bias for head in heads])
-        dx, dq, dlog_s = torch.nn.functional.linear(h, weight, bias).to(dtype).split((3, 4, 3), dim=-1)
-        dq = dq + self.identity.to(dtype)
-        return dx, dq, dlog_s
+        return torch.cat([head.weight for head in heads]), torch.cat([head.bias for head in heads])
+
+    def split(self, out: torch.Tensor, dtype: torch.dtype) -> DeformationOutput:
+        """The stacked heads' output [N, 10] as ``(dx, dq, dlog_s)`` in ``dtype``."""
+        dx, dq, dlog_s = out.to(dtype).split((3, 4, 3), dim=-1)
+        return dx, dq + self.identity.to(dtype), dlog_s
 
 
 class DeformationField(nn.Module):
@@ -114,6 +119,8 @@ class DeformationField(nn.Module):
             (positional_encoding(time_rows(t, x0), self.cfg.time_frequencies), slice(ex, e)),
         ]
         skip = None if self.cfg.skip_layer is None else self.cfg.skip_layer + 1
+        if fused_mlp.applies(x0):
+            return self._fused_forward(inputs, skip, e, x0.dtype)
         h = torch.relu(linear_of_parts(self.layers[0], inputs))
         for i, layer in enumerate(self.layers[1:], start=1):
             if i == skip:
@@ -121,6 +128,25 @@ class DeformationField(nn.Module):
             else:
                 h = torch.relu(layer(h))
         return self.heads(h, x0.dtype)
+
+    def _fused_forward(self, inputs: list, skip: int | None, e: int, dtype: torch.dtype) -> DeformationOutput:
+        """``forward`` as one native op (``fused_mlp``): the layers, the skip's concatenation as a
+        second product of the encoding, and the three heads as the last layer."""
+        first = self.layers[0]
+        x, weight, bias = fused_mlp.fold_parts(first.weight, first.bias, inputs)
+        weights, biases, skip_arg = [weight], [bias], None
+        for i, layer in enumerate(self.layers[1:], start=1):
+            if i == skip:
+                _, skip_weight, skip_bias = fused_mlp.fold_parts(layer.weight, layer.bias, inputs)
+                weights.append(layer.weight[:, e:])
+                biases.append(skip_bias)
+                skip_arg = (i, skip_weight)
+            else:
+                weights.append(layer.weight)
+                biases.append(layer.bias)
+        head_weight, head_bias = self.heads.stacked()
+        out = fused_mlp.fused_mlp(x, [*weights, head_weight], [*biases, head_bias], "relu", skip=skip_arg)
+        return self.heads.split(out, dtype)
 
 
 class HexPlaneDeformationField(nn.Module):

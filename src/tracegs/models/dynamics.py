@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from tracegs.models import fused_mlp
 from tracegs.models.encoding import (
     encoding_dim,
     linear_of_parts,
@@ -206,6 +207,21 @@ class DynamicsField(nn.Module):
         The MLP on ``encode(x, t)``, its first layer evaluated part by part (``linear_of_parts``: a
         time shared by all points enters as a bias)."""
         parts = self._input_parts(x, t)
+        if fused_mlp.applies(x):
+            raw, own = self._fused_raw(parts, rates)
+        else:
+            raw, own = self._raw(parts, rates)
+        named = {n: raw[:, self.head_rows(n)] for n in self.head_names if rates or n not in ACCELERATIONS}
+        if own is not None:
+            named |= {n: own[:, self.head_rows(n)] for n in self.own_names}
+        out = {name: named[name].to(x.dtype) for name in self.slices if name in named}
+        for name in ACCELERATIONS:
+            if name in out:
+                out[name] = scale_acceleration(out[name], self.cfg.acceleration_scale)
+        return out
+
+    def _raw(self, parts: list, rates: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The head's raw outputs [N, 3 k] and the own MLP's (None without it, or without ``rates``)."""
         own_hidden = None
         if rates and self.separate_accelerations:
             # both MLPs read the same encoding: their first layers run as one product, one activation
@@ -221,15 +237,30 @@ class DynamicsField(nn.Module):
         start = self._head_rates_start
         if rates and start is not None and self.cfg.detach_acceleration_features:
             raw = torch.cat([raw[:, :start], self.head(features.detach())[:, start:]], dim=-1)
-        named = {n: raw[:, self.head_rows(n)] for n in self.head_names if rates or n not in ACCELERATIONS}
-        if own_hidden is not None:
-            own = self.acceleration_head(self.acceleration_mlp[2:](own_hidden))
-            named |= {n: own[:, self.head_rows(n)] for n in self.own_names}
-        out = {name: named[name].to(x.dtype) for name in self.slices if name in named}
-        for name in ACCELERATIONS:
-            if name in out:
-                out[name] = scale_acceleration(out[name], self.cfg.acceleration_scale)
-        return out
+        own = None if own_hidden is None else self.acceleration_head(self.acceleration_mlp[2:](own_hidden))
+        return raw, own
+
+    def _fused_raw(self, parts: list, rates: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """``_raw`` as native ops (``fused_mlp``): the MLP and its head as one, the rates' stopped
+        gradient (``detach_acceleration_features``) inside it, and the own MLP with its head as
+        another on the same encoding (two first-layer products, the same FLOPs as one stacked)."""
+
+        def chain(mlp: nn.Sequential, head: nn.Linear, stop_from: int | None = None) -> torch.Tensor:
+            layers = [m for m in mlp if isinstance(m, nn.Linear)]
+            x, weight, bias = fused_mlp.fold_parts(layers[0].weight, layers[0].bias, parts)
+            weights = [weight, *[m.weight for m in layers[1:]], head.weight]
+            biases = [bias, *[m.bias for m in layers[1:]], head.bias]
+            return fused_mlp.fused_mlp(x, weights, biases, self.cfg.activation, stop_from=stop_from)
+
+        start = self._head_rates_start
+        stop = rates and start is not None and self.cfg.detach_acceleration_features
+        raw = chain(self.mlp, self.head, start if stop else None)
+        own = (
+            chain(self.acceleration_mlp, self.acceleration_head)
+            if rates and self.separate_accelerations
+            else None
+        )
+        return raw, own
 
     def forward(self, x: torch.Tensor, t: float | torch.Tensor, rates: bool = True) -> DynamicsParams:
         """Dynamics parameters of particles at positions ``x`` [N, 3] at time ``t`` (float or [N, 1]);

@@ -1,0 +1,474 @@
+// The fields' small float32 MLPs (f_defo, f_trd: 4 x 64 at the cpu-fast sizes) as one op forward
+// and one op backward, for CPUs where the fields run in float32 (no bf16 dot products: AVX2 hosts,
+// most laptops). At ~3500 points x 64 channels a layer's product is small for a BLAS call (~1.5x
+// its FLOP floor) and PyTorch then makes extra passes over the activations for the bias, the
+// activation and, in the backward, its derivative and the bias' sum: the fields ran at 2.3x their
+// floor (docs/DESIGN.md, "Fused fields").
+// Here every product is a register-blocked loop over rows (GCC vector extensions: AVX-512, AVX2 or
+// whatever the CPU has) whose result is finished in registers: the forward adds the bias and applies
+// the activation before it stores z and h; the backward's input-gradient product applies the
+// previous layer's activation derivative before it stores; the weight-gradient product sums the bias
+// gradient on the way. Values and gradients agree with the PyTorch layers to float rounding
+// (tests/models/test_fused_mlp.py).
+//
+// N: points, L: layers, K: a layer's inputs, O: its outputs; widths are padded to a multiple of PAD
+// with zeros (zero weights, zero bias: the padding stays zero through ReLU and SiLU).
+// Layer i: z_i = in_i W_i^T + b_i, in_0 = x, in_i = h_{i-1}; the skip layer adds x S^T (Deformable
+// 3DGS's concatenation [x, h] with its weight split in two); h_i = act(z_i), except the last layer's
+// when ``last_activation`` is false (a linear head). ``stop_from`` >= 0: the last layer's outputs
+// from that one on pass no gradient to its input (f_trd's rates, read from its features with their
+// gradient stopped). Sums over points (the weights' and biases' gradients) run over fixed blocks of
+// rows in a fixed order: the same result for any thread count.
+
+#include <ATen/Dispatch.h>
+#include <ATen/Parallel.h>
+#include <ATen/core/Tensor.h>
+#include <ATen/ops/empty.h>
+#include <ATen/ops/empty_like.h>
+#include <ATen/ops/zeros.h>
+#include <torch/library.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <type_traits>
+#include <vector>
+
+namespace {
+
+// Register blocks: the row-wise products keep RB rows x VB vectors of sums, the weight gradients OB
+// outputs x GB vectors, within the CPU's vector registers (32 with AVX-512, 16 with AVX2 and SSE).
+#if defined(__AVX512F__)
+constexpr int VBYTES = 64;
+constexpr int RB = 6, VB = 4, OB = 4, GB = 4;
+#elif defined(__AVX__)
+constexpr int VBYTES = 32;
+constexpr int RB = 2, VB = 4, OB = 2, GB = 4;
+#else
+constexpr int VBYTES = 16;  // SSE, NEON
+constexpr int RB = 6, VB = 2, OB = 4, GB = 2;
+#endif
+constexpr int64_t PAD = 16;           // widths padded to a multiple of this (of every vector's lanes)
+constexpr int64_t TILE_ROWS = 32;     // rows per parallel task of the row-wise products
+constexpr int64_t CHUNK_ROWS = 256;   // rows per partial sum of the weight gradients
+
+template <typename T>
+struct VT;
+template <>
+struct VT<float> {
+    typedef float v __attribute__((vector_size(VBYTES)));
+};
+template <>
+struct VT<double> {
+    typedef double v __attribute__((vector_size(VBYTES)));
+};
+template <typename T>
+constexpr int64_t LANES = VBYTES / sizeof(T);
+
+enum Activation : int64_t { RELU = 0, SILU = 1, NONE = 2 };
+
+inline int64_t padded(int64_t n) { return (n + PAD - 1) / PAD * PAD; }
+
+template <typename T>
+inline typename VT<T>::v loadv(const T* p) {
+    typename VT<T>::v v;
+    std::memcpy(&v, p, sizeof(v));
+    return v;
+}
+template <typename T>
+inline void storev(T* p, typename VT<T>::v v) {
+    std::memcpy(p, &v, sizeof(v));
+}
+
+// exp(-x) for float lanes in plain arithmetic (std::exp is a call per element): 2^n e^r with
+// |r| <= ln2 / 2 and a degree-6 polynomial, relative error ~2e-7; n rounded by adding 1.5 * 2^23.
+inline VT<float>::v exp_neg(VT<float>::v x) {
+    typedef int32_t vi __attribute__((vector_size(VBYTES)));
+    VT<float>::v y = -x;
+    y = y < -87.0f ? -87.0f : y;
+    y = y > 88.0f ? 88.0f : y;
+    const VT<float>::v n = (y * 1.44269504f + 12582912.0f) - 12582912.0f;
+    const VT<float>::v r = (y - n * 0.693145752f) - n * 1.42860677e-6f;
+    VT<float>::v p = r * (1.0f / 720.0f) + (1.0f / 120.0f);
+    p = p * r + (1.0f / 24.0f);
+    p = p * r + (1.0f / 6.0f);
+    p = p * r + 0.5f;
+    p = p * r + 1.0f;
+    p = p * r + 1.0f;
+    const vi bits = (__builtin_convertvector(n, vi) + 127) << 23;
+    VT<float>::v scale;
+    std::memcpy(&scale, &bits, sizeof(scale));
+    return p * scale;
+}
+
+inline VT<double>::v exp_neg(VT<double>::v x) {  // (double: the tests' finite differences)
+    VT<double>::v out;
+    for (int64_t l = 0; l < LANES<double>; ++l) {
+        out[l] = std::exp(-x[l]);
+    }
+    return out;
+}
+
+template <typename T>
+inline typename VT<T>::v sigmoid(typename VT<T>::v z) {
+    return T(1) / (T(1) + exp_neg(z));
+}
+
+// act'(z) g, from z (SiLU) or h (ReLU)
+template <typename T, int64_t ACT>
+inline typename VT<T>::v derivative(typename VT<T>::v g, typename VT<T>::v saved) {
+    if constexpr (ACT == SILU) {
+        const typename VT<T>::v s = sigmoid<T>(saved);
+        return g * (s * (T(1) + saved * (T(1) - s)));
+    } else if constexpr (ACT == RELU) {
+        return saved > T(0) ? g : T(0);
+    } else {
+        return g;
+    }
+}
+
+// One operand pair of a row-wise product: A [N, K] (row stride lda) times B [K, M] (row stride ldb).
+template <typename T>
+struct Pair {
+    const T* a;
+    int64_t lda;
+    const T* b;
+    int64_t ldb;
+    int64_t k;
+};
+
+// C = sum over pairs of A B (+ init, a row of M) for rows [r0, r0 + R) and vectors [v0, v0 + NV),
+// each result vector handed to epi(row, column, value).
+template <typename T, int R, int NV, typename Epi>
+inline void block(const std::vector<Pair<T>>& pairs, const T* init, int64_t r0, int64_t v0, Epi& epi) {
+    using V = typename VT<T>::v;
+    constexpr int64_t L = LANES<T>;
+    V acc[R][NV];
+    for (int j = 0; j < NV; ++j) {
+        const V start = init ? loadv(init + (v0 + j) * L) : V{};
+        for (int r = 0; r < R; ++r) {
+            acc[r][j] = start;
+        }
+    }
+    for (const Pair<T>& p : pairs) {
+        const T* arow = p.a + r0 * p.lda;
+        for (int64_t k = 0; k < p.k; ++k) {
+            V bv[NV];
+            for (int j = 0; j < NV; ++j) {
+                bv[j] = loadv(p.b + k * p.ldb + (v0 + j) * L);
+            }
+            for (int r = 0; r < R; ++r) {
+                const V a = V{} + arow[r * p.lda + k];
+                for (int j = 0; j < NV; ++j) {
+                    acc[r][j] += a * bv[j];
+                }
+            }
+        }
+    }
+    for (int r = 0; r < R; ++r) {
+        for (int j = 0; j < NV; ++j) {
+            epi(r0 + r, (v0 + j) * L, acc[r][j]);
+        }
+    }
+}
+
+template <typename T, int R, typename Epi>
+inline void block_row(const std::vector<Pair<T>>& pairs, const T* init, int64_t r0, int64_t vectors, Epi& epi) {
+    int64_t v0 = 0;
+    for (; v0 + VB <= vectors; v0 += VB) {
+        block<T, R, VB>(pairs, init, r0, v0, epi);
+    }
+    for (; v0 < vectors; ++v0) {
+        block<T, R, 1>(pairs, init, r0, v0, epi);
+    }
+}
+
+// The row-wise product over all n rows, m (padded) columns, in parallel tiles of rows.
+template <typename T, typename Epi>
+void product(const std::vector<Pair<T>>& pairs, const T* init, int64_t n, int64_t m, Epi epi) {
+    const int64_t vectors = m / LANES<T>;
+    const int64_t tiles = (n + TILE_ROWS - 1) / TILE_ROWS;
+    at::parallel_for(0, tiles, 1, [&](int64_t t0, int64_t t1) {
+        for (int64_t t = t0; t < t1; ++t) {
+            const int64_t end = std::min(n, (t + 1) * TILE_ROWS);
+            int64_t r = t * TILE_ROWS;
+            for (; r + RB <= end; r += RB) {
+                block_row<T, RB>(pairs, init, r, vectors, epi);
+            }
+            for (; r < end; ++r) {
+                block_row<T, 1>(pairs, init, r, vectors, epi);
+            }
+        }
+    });
+}
+
+// dW [M, K] = D^T In and db [M] = column sums of D, over n rows of D [n, M] and In [n, K] (padded
+// widths), by chunks of CHUNK_ROWS rows summed in order.
+template <typename T>
+void weight_gradient(const T* d, int64_t m, const T* in, int64_t k, int64_t n, T* dw, T* db) {
+    using V = typename VT<T>::v;
+    constexpr int64_t L = LANES<T>;
+    const int64_t chunks = std::max<int64_t>(1, (n + CHUNK_ROWS - 1) / CHUNK_ROWS);
+    std::vector<T> partial(chunks * (m * k + m));
+    const int64_t kv = k / L;
+    at::parallel_for(0, chunks, 1, [&](int64_t c0, int64_t c1) {
+        for (int64_t c = c0; c < c1; ++c) {
+            T* pw = partial.data() + c * (m * k + m);
+            T* pb = pw + m * k;
+            const int64_t r0 = c * CHUNK_ROWS, r1 = std::min(n, r0 + CHUNK_ROWS);
+            for (int64_t o0 = 0; o0 < m; o0 += OB) {
+                for (int64_t v0 = 0; v0 < kv; v0 += GB) {
+                    const int nv = int(std::min<int64_t>(GB, kv - v0));
+                    V acc[OB][GB] = {};
+                    for (int64_t r = r0; r < r1; ++r) {
+                        V iv[GB];
+                        for (int j = 0; j < GB; ++j) {
+                            iv[j] = j < nv ? loadv(in + r * k + (v0 + j) * L) : V{};
+                        }
+                        for (int o = 0; o < OB; ++o) {
+                            const V dv = V{} + d[r * m + o0 + o];
+                            for (int j = 0; j < GB; ++j) {
+                                acc[o][j] += dv * iv[j];
+                            }
+                        }
+                    }
+                    for (int o = 0; o < OB; ++o) {
+                        for (int j = 0; j < nv; ++j) {
+                            storev(pw + (o0 + o) * k + (v0 + j) * L, acc[o][j]);
+                        }
+                    }
+                }
+            }
+            for (int64_t v = 0; v < m / L; ++v) {
+                V s{};
+                for (int64_t r = r0; r < r1; ++r) {
+                    s += loadv(d + r * m + v * L);
+                }
+                storev(pb + v * L, s);
+            }
+        }
+    });
+    std::fill(dw, dw + m * k, T(0));
+    std::fill(db, db + m, T(0));
+    for (int64_t c = 0; c < chunks; ++c) {
+        const T* pw = partial.data() + c * (m * k + m);
+        for (int64_t i = 0; i < m * k; ++i) {
+            dw[i] += pw[i];
+        }
+        for (int64_t i = 0; i < m; ++i) {
+            db[i] += pw[m * k + i];
+        }
+    }
+}
+
+// A matrix [rows, cols] (any strides) copied into a zero-padded [padded rows, padded cols] buffer,
+// transposed if asked ([cols, rows] -> its transpose's padding).
+at::Tensor pack(const at::Tensor& w, bool transpose, int64_t keep_rows = -1) {
+    at::Tensor src = transpose ? w.t() : w;
+    if (keep_rows >= 0 && keep_rows < src.size(0)) {
+        src = src.narrow(0, 0, keep_rows);
+    }
+    at::Tensor out = at::zeros({padded(transpose ? w.size(1) : w.size(0)), padded(transpose ? w.size(0) : w.size(1))},
+                               w.options());
+    out.narrow(0, 0, src.size(0)).narrow(1, 0, src.size(1)).copy_(src);
+    return out;
+}
+
+at::Tensor pad_vector(const at::Tensor& b) {
+    at::Tensor out = at::zeros({padded(b.size(0))}, b.options());
+    out.narrow(0, 0, b.size(0)).copy_(b);
+    return out;
+}
+
+inline bool activates(int64_t i, int64_t layers, bool last_activation) {
+    return i < layers - 1 || last_activation;
+}
+
+template <typename T, int64_t ACT>
+struct ForwardStore {
+    T* z;
+    T* h;
+    int64_t ld;
+    void operator()(int64_t r, int64_t c, typename VT<T>::v v) {
+        if constexpr (ACT == SILU) {
+            storev(z + r * ld + c, v);
+            storev(h + r * ld + c, v * sigmoid<T>(v));
+        } else if constexpr (ACT == RELU) {
+            storev(h + r * ld + c, v > T(0) ? v : T(0));
+        } else {
+            storev(z + r * ld + c, v);
+        }
+    }
+};
+
+template <typename T, int64_t ACT>
+struct BackwardStore {  // dz_{i-1} = (dz_i W_i) act'_{i-1}
+    T* out;
+    const T* saved;
+    int64_t ld;
+    void operator()(int64_t r, int64_t c, typename VT<T>::v v) {
+        storev(out + r * ld + c, derivative<T, ACT>(v, loadv(saved + r * ld + c)));
+    }
+};
+
+template <typename T, typename Fn>
+void with_activation(int64_t act, Fn fn) {
+    if (act == SILU) {
+        fn(std::integral_constant<int64_t, SILU>{});
+    } else if (act == RELU) {
+        fn(std::integral_constant<int64_t, RELU>{});
+    } else {
+        fn(std::integral_constant<int64_t, NONE>{});
+    }
+}
+
+// [out (a view of the padded last layer), x padded, then per layer z_i and h_i (padded; for ReLU
+// z_i is h_i, for the linear head both are its output)].
+std::vector<at::Tensor> mlp_forward(
+    const at::Tensor& x,
+    std::vector<at::Tensor> weights,
+    std::vector<at::Tensor> biases,
+    const c10::optional<at::Tensor>& skip_weight,
+    int64_t skip_layer,
+    int64_t activation,
+    bool last_activation) {
+    const int64_t layers = int64_t(weights.size());
+    TORCH_CHECK(layers > 0 && int64_t(biases.size()) == layers, "mlp_forward: one bias per weight");
+    TORCH_CHECK(skip_layer < 0 || skip_weight.has_value(), "mlp_forward: the skip layer needs its weight");
+    TORCH_CHECK(activation == RELU || activation == SILU, "mlp_forward: unknown activation");
+    TORCH_CHECK(x.dim() == 2 && (x.scalar_type() == at::kFloat || x.scalar_type() == at::kDouble),
+                "mlp_forward: x must be [N, E] float32 or float64");
+    const int64_t n = x.size(0);
+    const at::Tensor input = pack(x, false);  // [N padded to PAD rows, E padded]
+    std::vector<at::Tensor> saved{at::Tensor(), input};
+    at::Tensor h = input;
+    AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "mlp_forward", [&] {
+        for (int64_t i = 0; i < layers; ++i) {
+            TORCH_CHECK(weights[i].size(1) == (i == 0 ? x.size(1) : weights[i - 1].size(0)),
+                        "mlp_forward: layer ", i, " does not take the previous layer's width");
+            const at::Tensor wt = pack(weights[i].to(x.scalar_type()), true);  // [K padded, O padded]
+            const at::Tensor b = pad_vector(biases[i].to(x.scalar_type()));
+            std::vector<Pair<scalar_t>> pairs{{h.data_ptr<scalar_t>(), h.size(1), wt.data_ptr<scalar_t>(), wt.size(1), wt.size(0)}};
+            at::Tensor st;
+            if (i == skip_layer) {
+                st = pack(skip_weight->to(x.scalar_type()), true);
+                pairs.push_back({input.data_ptr<scalar_t>(), input.size(1), st.data_ptr<scalar_t>(), st.size(1), st.size(0)});
+            }
+            const int64_t m = wt.size(1);
+            const int64_t act = activates(i, layers, last_activation) ? activation : NONE;
+            at::Tensor z = at::empty({input.size(0), m}, x.options());
+            at::Tensor out = act == SILU ? at::empty_like(z) : z;
+            if (input.size(0) > n) {  // the padding rows stay zero
+                z.narrow(0, n, input.size(0) - n).zero_();
+                out.narrow(0, n, input.size(0) - n).zero_();
+            }
+            with_activation<scalar_t>(act, [&](auto a) {
+                product<scalar_t>(pairs, b.data_ptr<scalar_t>(), n, m,
+                                  ForwardStore<scalar_t, decltype(a)::value>{z.data_ptr<scalar_t>(), out.data_ptr<scalar_t>(), m});
+            });
+            saved.push_back(z);
+            saved.push_back(out);
+            h = out;
+        }
+    });
+    saved[0] = h.narrow(0, 0, n).narrow(1, 0, weights.back().size(0));
+    return saved;
+}
+
+// [d weights (L), d biases (L), d skip weight, d x] (the last two empty when not asked for).
+std::vector<at::Tensor> mlp_backward(
+    const at::Tensor& grad_out,
+    std::vector<at::Tensor> saved,
+    std::vector<at::Tensor> weights,
+    const c10::optional<at::Tensor>& skip_weight,
+    int64_t skip_layer,
+    int64_t activation,
+    bool last_activation,
+    int64_t stop_from,
+    bool wants_x) {
+    const int64_t layers = int64_t(weights.size());
+    TORCH_CHECK(int64_t(saved.size()) == 2 + 2 * layers, "mlp_backward: saved tensors do not match");
+    const at::Tensor& input = saved[1];
+    const auto type = input.scalar_type();
+    const int64_t n = grad_out.size(0), rows = input.size(0);
+    std::vector<at::Tensor> grads(2 * layers + 2, at::empty({0}, input.options()));
+    at::Tensor dx;
+    AT_DISPATCH_FLOATING_TYPES(type, "mlp_backward", [&] {
+        // dz of the last layer: the incoming gradient, padded, times its activation's derivative
+        const int64_t last = layers - 1;
+        const int64_t m_last = saved[2 + 2 * last].size(1);
+        at::Tensor dz = at::zeros({rows, m_last}, input.options());
+        dz.narrow(0, 0, n).narrow(1, 0, grad_out.size(1)).copy_(grad_out);
+        if (activates(last, layers, last_activation)) {
+            const at::Tensor& s = saved[activation == SILU ? 2 + 2 * last : 3 + 2 * last];
+            with_activation<scalar_t>(activation, [&](auto a) {
+                constexpr int64_t L = LANES<scalar_t>;
+                scalar_t* p = dz.data_ptr<scalar_t>();
+                const scalar_t* sp = s.data_ptr<scalar_t>();
+                for (int64_t e = 0; e < n * m_last; e += L) {
+                    storev(p + e, derivative<scalar_t, decltype(a)::value>(loadv(p + e), loadv(sp + e)));
+                }
+            });
+        }
+        for (int64_t i = last; i >= 0; --i) {
+            const at::Tensor& in = i == 0 ? input : saved[3 + 2 * (i - 1)];  // h_{i-1}, padded
+            const int64_t m = dz.size(1), k = in.size(1);
+            at::Tensor dw = at::empty({m, k}, input.options());
+            at::Tensor db = at::empty({m}, input.options());
+            weight_gradient<scalar_t>(dz.data_ptr<scalar_t>(), m, in.data_ptr<scalar_t>(), k, n, dw.data_ptr<scalar_t>(),
+                                      db.data_ptr<scalar_t>());
+            grads[i] = dw.narrow(0, 0, weights[i].size(0)).narrow(1, 0, weights[i].size(1)).to(weights[i].scalar_type());
+            grads[layers + i] = db.narrow(0, 0, weights[i].size(0)).to(weights[i].scalar_type());
+            at::Tensor ds;
+            if (i == skip_layer) {
+                ds = at::empty({m, input.size(1)}, input.options());
+                at::Tensor dsb = at::empty({m}, input.options());
+                weight_gradient<scalar_t>(dz.data_ptr<scalar_t>(), m, input.data_ptr<scalar_t>(), input.size(1), n,
+                                          ds.data_ptr<scalar_t>(), dsb.data_ptr<scalar_t>());
+                grads[2 * layers] = ds.narrow(0, 0, skip_weight->size(0)).narrow(1, 0, skip_weight->size(1))
+                                        .to(skip_weight->scalar_type());
+            }
+            // the input gradients read the rows before stop_from only
+            const int64_t keep = i == last && stop_from >= 0 ? stop_from : -1;
+            const scalar_t* dzp = dz.data_ptr<scalar_t>();
+            if (wants_x && (i == 0 || i == skip_layer)) {
+                const at::Tensor w = pack(i == 0 ? weights[0].to(type) : skip_weight->to(type), false, keep);
+                if (!dx.defined()) {
+                    dx = at::zeros({rows, input.size(1)}, input.options());
+                }
+                scalar_t* dxp = dx.data_ptr<scalar_t>();
+                const int64_t ld = dx.size(1);
+                std::vector<Pair<scalar_t>> pairs{{dzp, m, w.data_ptr<scalar_t>(), w.size(1), w.size(0)}};
+                product<scalar_t>(pairs, nullptr, n, ld, [&](int64_t r, int64_t c, typename VT<scalar_t>::v v) {
+                    storev(dxp + r * ld + c, loadv(dxp + r * ld + c) + v);
+                });
+            }
+            if (i == 0) {
+                break;
+            }
+            // dz_{i-1} = (dz_i W_i) act'(z_{i-1})
+            const at::Tensor w = pack(weights[i].to(type), false, keep);  // [O padded, K padded]
+            at::Tensor next = at::empty({rows, k}, input.options());  // (rows < n: all written below)
+            next.narrow(0, n, rows - n).zero_();
+            const at::Tensor& s = saved[activation == SILU ? 2 + 2 * (i - 1) : 3 + 2 * (i - 1)];
+            std::vector<Pair<scalar_t>> pairs{{dzp, m, w.data_ptr<scalar_t>(), w.size(1), w.size(0)}};
+            with_activation<scalar_t>(activation, [&](auto a) {
+                product<scalar_t>(pairs, nullptr, n, k,
+                                  BackwardStore<scalar_t, decltype(a)::value>{next.data_ptr<scalar_t>(), s.data_ptr<scalar_t>(), k});
+            });
+            dz = next;
+        }
+    });
+    if (wants_x) {
+        grads[2 * layers + 1] = dx.narrow(0, 0, n).narrow(1, 0, weights[0].size(1)).contiguous();
+    }
+    return grads;
+}
+
+}  // namespace
+
+TORCH_LIBRARY(tracegs_mlp_cpu, m) {
+    m.def("mlp_forward", &mlp_forward);
+    m.def("mlp_backward", &mlp_backward);
+}

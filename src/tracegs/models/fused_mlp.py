@@ -1,0 +1,113 @@
+"""The fields' MLPs as one native op forward and one backward on the CPU (``csrc/mlp_cpu.cpp``).
+
+``DeformationField`` and ``DynamicsField`` take this path by themselves where it applies (a CPU,
+float32 or float64 inputs, more than one point, the extension built) and, with ``ENABLED = False``,
+run their PyTorch layers. Both paths compute the same products in the same dtype (bf16 under the
+fields' autocast): values and gradients agree to rounding (tests/models/test_fused_mlp.py).
+
+N: points, E: input channels, O: a layer's outputs.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from ..cpp import EXTENSIONS
+
+EXTENSION = EXTENSIONS["tracegs_mlp_cpu"]
+
+ENABLED = True
+"""Use the native op where it applies (set False to compare with the PyTorch layers)."""
+
+ACTIVATION_CODES = {"relu": 0, "silu": 1}
+
+
+def applies(x: torch.Tensor) -> bool:
+    """Whether ``fused_mlp`` can run on the encoded inputs ``x`` [N, E]: float32 or float64 on the CPU,
+    outside bf16 autocast (where oneDNN's bf16 products are faster than this float32 kernel)."""
+    if not ENABLED or x.device.type != "cpu" or x.dim() != 2 or x.shape[0] < 2:
+        return False
+    if x.dtype not in (torch.float32, torch.float64) or torch.is_autocast_enabled("cpu"):
+        return False
+    return EXTENSION.load() is not None
+
+
+class _FusedMLP(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, x, skip_weight, settings, *layers):
+        skip_layer, activation, last_activation, _ = settings
+        half = len(layers) // 2
+        weights, biases = list(layers[:half]), list(layers[half:])
+        saved = EXTENSION.load().mlp_forward(
+            x, weights, biases, skip_weight, skip_layer, activation, last_activation
+        )
+        ctx.save_for_backward(skip_weight, *weights, *saved[1:])  # x, z and h, padded
+        ctx.settings, ctx.layers = settings, half
+        return saved[0]
+
+    @staticmethod
+    def backward(ctx, grad_out):
+        skip_layer, activation, last_activation, stop_from = ctx.settings
+        skip_weight, *rest = ctx.saved_tensors
+        n = ctx.layers
+        weights, saved = rest[:n], rest[n:]
+        grads = EXTENSION.load().mlp_backward(
+            grad_out.contiguous(),
+            [grad_out, *saved],  # (slot 0, the output, is not read)
+            weights,
+            skip_weight,
+            skip_layer,
+            activation,
+            last_activation,
+            stop_from,
+            ctx.needs_input_grad[0],
+        )
+        d_skip = grads[2 * n] if skip_weight is not None and ctx.needs_input_grad[1] else None
+        d_x = grads[2 * n + 1] if ctx.needs_input_grad[0] else None
+        return d_x, d_skip, None, *grads[:n], *grads[n : 2 * n]
+
+
+def fused_mlp(
+    x: torch.Tensor,
+    weights: list[torch.Tensor],
+    biases: list[torch.Tensor],
+    activation: str,
+    last_activation: bool = False,
+    skip: tuple[int, torch.Tensor] | None = None,
+    stop_from: int | None = None,
+) -> torch.Tensor:
+    """The MLP ``z_i = in_i W_i^T + b_i``, ``h_i = act(z_i)`` on ``x`` [N, E] (``in_0 = x``,
+    ``in_i = h_{i-1}``), the last layer linear unless ``last_activation``: its output [N, O_last].
+
+    ``skip = (i, S)``: layer ``i`` also adds ``x S^T`` (a concatenation [x, h] with its weight split);
+    ``stop_from``: the last layer's outputs from this one on pass no gradient to its input (they still
+    train its weights). Call where ``applies`` says so."""
+    skip_layer, skip_weight = (-1, None) if skip is None else skip
+    settings = (
+        skip_layer,
+        ACTIVATION_CODES[activation],
+        last_activation,
+        -1 if stop_from is None else stop_from,
+    )
+    return _FusedMLP.apply(x.contiguous(), skip_weight, settings, *weights, *biases)
+
+
+def fold_parts(
+    weight: torch.Tensor, bias: torch.Tensor, parts: list[tuple[torch.Tensor, slice | torch.Tensor]]
+) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
+    """A first layer on parts of its input (``encoding.product_of_parts``' arguments) as the fused
+    op's ``(x, weight, bias)``: the single-row parts (a time shared by every point) folded into the
+    bias, the others concatenated with their weight columns. ``x`` is None when every part folded."""
+    values, columns = [], []
+    for part, cols in parts:
+        part_weight = weight[:, cols]
+        if part.shape[0] == 1:
+            bias = torch.nn.functional.linear(part, part_weight, bias).reshape(-1)
+        else:
+            values.append(part)
+            columns.append(part_weight)
+    if not values:
+        return None, None, bias
+    if len(values) == 1:
+        return values[0], columns[0], bias
+    return torch.cat(values, dim=-1), torch.cat(columns, dim=-1), bias

@@ -1,0 +1,181 @@
+"""The fused field MLPs (models/fused_mlp.py) against the PyTorch layers they replace, and their own
+gradients against finite differences."""
+
+from __future__ import annotations
+
+import os
+import platform
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from tracegs.config import make_config
+from tracegs.models import fused_mlp
+from tracegs.models.deformation import DeformationConfig, DeformationField
+from tracegs.models.dynamics import DynamicsConfig, DynamicsField
+
+pytestmark = pytest.mark.skipif(fused_mlp.EXTENSION.load() is None, reason="the fused MLP did not build here")
+
+
+def randomised(module: torch.nn.Module, dtype=torch.float32, seed: int = 0) -> torch.nn.Module:
+    """``module`` with every parameter random (the fields start with zero heads, which would hide
+    errors in the layers behind them)."""
+    g = torch.Generator().manual_seed(seed)
+    module = module.to(dtype)
+    with torch.no_grad():
+        for p in module.parameters():
+            p.copy_(0.3 * torch.randn(p.shape, generator=g, dtype=dtype))
+    return module
+
+
+def outputs_and_grads(field, x: torch.Tensor, t, fused: bool, **kwargs) -> list[torch.Tensor]:
+    """The field's outputs at (x, t) and the gradients of a fixed random functional of them with
+    respect to its parameters and to x."""
+    x = x.clone().requires_grad_()
+    previous, fused_mlp.ENABLED = fused_mlp.ENABLED, fused
+    try:
+        out = field(x, t, **kwargs)
+    finally:
+        fused_mlp.ENABLED = previous
+    out = [o for o in out if o is not None]
+    g = torch.Generator().manual_seed(1)
+    total = sum((o * torch.randn(o.shape, generator=g, dtype=o.dtype)).sum() for o in out)
+    params = [p for p in field.parameters() if p.requires_grad]
+    grads = torch.autograd.grad(total, [*params, x], allow_unused=True)
+    return out + [torch.zeros_like(p) if d is None else d for p, d in zip([*params, x], grads, strict=True)]
+
+
+def assert_match(field, x, t, tolerance, **kwargs):
+    """Every output and gradient within ``tolerance`` times the largest magnitude of its tensor (a
+    gradient sums thousands of points: single elements may cancel to near zero)."""
+    ours = outputs_and_grads(field, x, t, True, **kwargs)
+    reference = outputs_and_grads(field, x, t, False, **kwargs)
+    for a, b in zip(ours, reference, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=tolerance * float(b.detach().abs().max()))
+
+
+def times(n: int, dtype) -> list:
+    """One time for every point (folded into the first layers' bias) and one time per point."""
+    return [0.37, torch.linspace(0.0, 1.0, n, dtype=dtype)[:, None]]
+
+
+@pytest.mark.parametrize(
+    "cfg",
+    [
+        make_config("cpu-fast").deformation,
+        DeformationConfig(depth=3, width=40, skip_layer=0, detach_input=False),
+        DeformationConfig(depth=2, width=24, skip_layer=None),
+    ],
+    ids=["cpu-fast", "skip-first", "no-skip"],
+)
+def test_fused_deformation_field_matches_its_layers(cfg):
+    field = randomised(DeformationField(cfg), torch.float64)
+    x = torch.randn(37, 3, dtype=torch.float64)
+    for t in times(37, torch.float64):
+        assert_match(field, x, t, 1e-12)
+
+
+@pytest.mark.parametrize(
+    "cfg",
+    [
+        make_config("cpu-fast").dynamics,
+        DynamicsConfig(depth=3, width=20, num_frequencies=2, activation="relu"),
+        DynamicsConfig(depth=2, width=24, num_frequencies=2, order=3, acceleration_depth=2),
+    ],
+    ids=["cpu-fast", "relu", "order-3-own-rates"],
+)
+@pytest.mark.parametrize("rates", [True, False])
+def test_fused_dynamics_field_matches_its_layers(cfg, rates):
+    field = randomised(DynamicsField(cfg), torch.float64)
+    x = torch.randn(29, 3, dtype=torch.float64)
+    for t in times(29, torch.float64):
+        assert_match(field, x, t, 1e-12, rates=rates)
+
+
+def test_fused_fields_in_float32_agree_to_rounding():
+    cfg = make_config("cpu-fast")
+    x = torch.randn(3000, 3)
+    assert_match(randomised(DeformationField(cfg.deformation)), x, 0.4, 1e-5)
+    assert_match(randomised(DynamicsField(cfg.dynamics)), x, 0.4, 1e-5)
+
+
+@pytest.mark.parametrize("activation", ["relu", "silu"])
+@pytest.mark.parametrize("last_activation", [True, False])
+def test_fused_mlp_gradients_match_finite_differences(activation, last_activation):
+    g = torch.Generator().manual_seed(0)
+    widths = [7, 9, 18, 5]  # not multiples of the kernel's padding
+
+    def param(*shape):
+        return torch.randn(*shape, generator=g, dtype=torch.float64).requires_grad_()
+
+    weights = [param(o, i) for i, o in zip(widths[:-1], widths[1:], strict=True)]
+    biases = [param(o) for o in widths[1:]]
+    skip = param(widths[2], widths[0])
+    x = param(6, widths[0])
+
+    def f(x, skip, *layers):
+        return fused_mlp.fused_mlp(
+            x, list(layers[:3]), list(layers[3:]), activation, last_activation, skip=(1, skip)
+        )
+
+    assert torch.autograd.gradcheck(f, (x, skip, *weights, *biases))
+
+
+def test_stopped_outputs_train_the_weights_but_not_the_input():
+    g = torch.Generator().manual_seed(0)
+    weights = [
+        torch.randn(8, 4, generator=g, dtype=torch.float64),
+        torch.randn(6, 8, generator=g, dtype=torch.float64),
+    ]
+    biases = [torch.randn(8, dtype=torch.float64), torch.randn(6, dtype=torch.float64)]
+    for p in (*weights, *biases):
+        p.requires_grad_()
+    x = torch.randn(5, 4, dtype=torch.float64, requires_grad=True)
+    out = fused_mlp.fused_mlp(x, weights, biases, "silu", stop_from=2)
+    out[:, 2:].sum().backward()
+    assert float(x.grad.abs().max()) == 0.0 and float(weights[0].grad.abs().max()) == 0.0
+    assert float(weights[1].grad[2:].abs().max()) > 0 and float(weights[1].grad[:2].abs().max()) == 0.0
+
+
+def test_where_the_fused_path_applies():
+    x = torch.randn(10, 3)
+    assert fused_mlp.applies(x)
+    assert not fused_mlp.applies(x[:1])  # a single point: every part folds into the bias
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        assert not fused_mlp.applies(x)  # bf16: oneDNN's products
+    previous, fused_mlp.ENABLED = fused_mlp.ENABLED, False
+    try:
+        assert not fused_mlp.applies(x)
+    finally:
+        fused_mlp.ENABLED = previous
+
+
+@pytest.mark.skipif(platform.machine() != "x86_64", reason="x86 instruction sets")
+def test_fused_mlp_built_for_avx2_matches_its_layers(tmp_path):
+    """The AVX2 build (what most laptops run; 16 vector registers, other register blocks) against the
+    PyTorch layers, in a process of its own built with TRACEGS_MARCH (the default build here may be
+    AVX-512)."""
+    script = (
+        "import torch\n"
+        "from tracegs.models import fused_mlp\n"
+        "from tracegs.models.dynamics import DynamicsConfig, DynamicsField\n"
+        "assert fused_mlp.EXTENSION.load() is not None\n"
+        "torch.manual_seed(0)\n"
+        "field = DynamicsField(DynamicsConfig(depth=3, width=40, num_frequencies=2)).double()\n"
+        "with torch.no_grad():\n"
+        "    for p in field.parameters():\n"
+        "        p.copy_(0.3 * torch.randn_like(p))\n"
+        "x = torch.randn(77, 3, dtype=torch.float64)\n"
+        "def run(fused):\n"
+        "    fused_mlp.ENABLED = fused\n"
+        "    out = field(x, 0.3)\n"
+        "    total = sum((o * (i + 1)).sum() for i, o in enumerate(out) if o is not None)\n"
+        "    return [*[o for o in out if o is not None], *torch.autograd.grad(total, list(field.parameters()))]\n"
+        "for a, b in zip(run(True), run(False), strict=True):\n"
+        "    torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)\n"
+    )
+    env = {**os.environ, "TRACEGS_MARCH": "x86-64-v3"}  # (a build of its own in the cache, keyed by -march)
+    res = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
