@@ -1,14 +1,16 @@
 """The fields' MLPs as one native op forward and one backward on the CPU (``csrc/mlp_cpu.cpp``).
 
-``DeformationField`` and ``DynamicsField`` take this path by themselves where it applies (a CPU,
-float32 or float64 inputs, more than one point, the extension built) and, with ``ENABLED = False``,
-run their PyTorch layers. Both paths compute the same products in the same dtype (bf16 under the
-fields' autocast): values and gradients agree to rounding (tests/models/test_fused_mlp.py).
+``DeformationField`` and ``DynamicsField`` take this path by themselves where it applies (``applies``:
+a CPU, float32 or float64 fields, more than one point, the extension built with AVX-512) and, with
+``ENABLED = False``, run their PyTorch layers. Both compute the same function: values and gradients
+agree to float rounding (tests/models/test_fused_mlp.py).
 
 N: points, E: input channels, O: a layer's outputs.
 """
 
 from __future__ import annotations
+
+import functools
 
 import torch
 
@@ -22,14 +24,27 @@ ENABLED = True
 ACTIVATION_CODES = {"relu": 0, "silu": 1}
 
 
+MIN_VECTOR_BYTES = 64
+"""The fields take the op where it was built with vectors at least this wide: with AVX-512 (32
+registers) its products beat ATen's, with AVX2 (16) they do not yet (docs/DESIGN.md, "Fused float32 MLPs")."""
+
+
 def applies(x: torch.Tensor) -> bool:
-    """Whether ``fused_mlp`` can run on the encoded inputs ``x`` [N, E]: float32 or float64 on the CPU,
-    outside bf16 autocast (where oneDNN's bf16 products are faster than this float32 kernel)."""
+    """Whether ``fused_mlp`` serves the encoded inputs ``x`` [N, E]: float32 or float64 on the CPU,
+    outside bf16 autocast (where oneDNN's bf16 products are faster than this float32 kernel), with
+    the extension built for vectors of ``MIN_VECTOR_BYTES``."""
     if not ENABLED or x.device.type != "cpu" or x.dim() != 2 or x.shape[0] < 2:
         return False
     if x.dtype not in (torch.float32, torch.float64) or torch.is_autocast_enabled("cpu"):
         return False
-    return EXTENSION.load() is not None
+    return _vector_bytes() >= MIN_VECTOR_BYTES
+
+
+@functools.cache
+def _vector_bytes() -> int:
+    """The built op's vector width in bytes (0 where it did not build)."""
+    ops = EXTENSION.load()
+    return 0 if ops is None else int(ops.vector_bytes())
 
 
 class _FusedMLP(torch.autograd.Function):

@@ -1,9 +1,8 @@
 // The fields' small float32 MLPs (f_defo, f_trd: 4 x 64 at the cpu-fast sizes) as one op forward
-// and one op backward, for CPUs where the fields run in float32 (no bf16 dot products: AVX2 hosts,
-// most laptops). At ~3500 points x 64 channels a layer's product is small for a BLAS call (~1.5x
-// its FLOP floor) and PyTorch then makes extra passes over the activations for the bias, the
-// activation and, in the backward, its derivative and the bias' sum: the fields ran at 2.3x their
-// floor (docs/DESIGN.md, "Fused fields").
+// and one op backward. At ~3500 points x 64 channels a layer's product is a small call for a BLAS
+// (~1.5x its FLOP floor) and PyTorch then makes extra passes over the activations for the bias, the
+// activation and, in the backward, its derivative and the bias' sum (docs/DESIGN.md, "Fused float32
+// MLPs"; the fields take this op where it is built with AVX-512, models/fused_mlp.py).
 // Here every product is a register-blocked loop over rows (GCC vector extensions: AVX-512, AVX2 or
 // whatever the CPU has) whose result is finished in registers: the forward adds the bias and applies
 // the activation before it stores z and h; the backward's input-gradient product applies the
@@ -466,9 +465,13 @@ std::vector<at::Tensor> mlp_backward(
     return grads;
 }
 
+// The vector width the kernels were built for, in bytes (64: AVX-512, 32: AVX2, 16: SSE or NEON).
+int64_t vector_bytes() { return VBYTES; }
+
 }  // namespace
 
 TORCH_LIBRARY(tracegs_mlp_cpu, m) {
+    m.def("vector_bytes", &vector_bytes);
     m.def("mlp_forward", &mlp_forward);
     m.def("mlp_backward", &mlp_backward);
 }
