@@ -187,3 +187,13 @@ def test_fused_mlp_built_for_avx2_matches_its_layers(tmp_path):
     env = {**os.environ, "TRACEGS_MARCH": "x86-64-v3"}  # (a build of its own in the cache, keyed by -march)
     res = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr[-2000:]
+
+
+def test_second_derivatives_are_refused_not_wrong():
+    w = torch.randn(4, 3, dtype=torch.float64, requires_grad=True)
+    b = torch.zeros(4, dtype=torch.float64, requires_grad=True)
+    x = torch.randn(5, 3, dtype=torch.float64, requires_grad=True)
+    out = fused_mlp.fused_mlp(x, [w], [b], "silu", last_activation=True)
+    (grad,) = torch.autograd.grad(out.sum(), x, create_graph=True)
+    with pytest.raises(RuntimeError):
+        grad.sum().backward()

@@ -23,10 +23,10 @@ ENABLED = True
 
 ACTIVATION_CODES = {"relu": 0, "silu": 1}
 
-
 MIN_VECTOR_BYTES = 64
 """The fields take the op where it was built with vectors at least this wide: with AVX-512 (32
-registers) its products beat ATen's, with AVX2 (16) they do not yet (docs/DESIGN.md, "Fused float32 MLPs")."""
+registers) its products beat ATen's, with AVX2 (16) they do not yet (docs/DESIGN.md, "Fused float32
+MLPs")."""
 
 
 def applies(x: torch.Tensor) -> bool:
@@ -61,6 +61,7 @@ class _FusedMLP(torch.autograd.Function):
         return saved[0]
 
     @staticmethod
+    @torch.autograd.function.once_differentiable  # (no second derivatives: a clear error, not zeros)
     def backward(ctx, grad_out):
         skip_layer, activation, last_activation, stop_from = ctx.settings
         skip_weight, *rest = ctx.saved_tensors
