@@ -32,6 +32,7 @@
 #include <cstdint>
 #include <cstring>
 #include <type_traits>
+#include <utility>
 #include <vector>
 
 namespace {
@@ -43,7 +44,7 @@ constexpr int VBYTES = 64;
 constexpr int RB = 6, VB = 4, OB = 4, GB = 4;
 #elif defined(__AVX__)
 constexpr int VBYTES = 32;
-constexpr int RB = 2, VB = 4, OB = 2, GB = 4;
+constexpr int RB = 3, VB = 4, OB = 4, GB = 3;  // (B's fourth vector read from memory by the FMA)
 #else
 constexpr int VBYTES = 16;  // SSE, NEON
 constexpr int RB = 6, VB = 2, OB = 4, GB = 2;
@@ -78,6 +79,16 @@ inline typename VT<T>::v loadv(const T* p) {
 template <typename T>
 inline void storev(T* p, typename VT<T>::v v) {
     std::memcpy(p, &v, sizeof(v));
+}
+// s in every lane, as one broadcast (``V{} + s`` would add a zero first; a loop over the lanes
+// becomes lane inserts)
+template <typename V, typename T, size_t... I>
+inline V splat(T s, std::index_sequence<I...>) {
+    return V{((void)I, s)...};
+}
+template <typename T>
+inline typename VT<T>::v broadcast(T s) {
+    return splat<typename VT<T>::v>(s, std::make_index_sequence<VBYTES / sizeof(T)>{});
 }
 
 // exp(-x) for float lanes in plain arithmetic (std::exp is a call per element): 2^n e^r with
@@ -158,7 +169,7 @@ inline void block(const std::vector<Pair<T>>& pairs, const T* init, int64_t r0, 
                 bv[j] = loadv(p.b + k * p.ldb + (v0 + j) * L);
             }
             for (int r = 0; r < R; ++r) {
-                const V a = V{} + arow[r * p.lda + k];
+                const V a = broadcast<T>(arow[r * p.lda + k]);
                 for (int j = 0; j < NV; ++j) {
                     acc[r][j] += a * bv[j];
                 }
@@ -226,7 +237,7 @@ void weight_gradient(const T* d, int64_t m, const T* in, int64_t k, int64_t n, T
                             iv[j] = j < nv ? loadv(in + r * k + (v0 + j) * L) : V{};
                         }
                         for (int o = 0; o < OB; ++o) {
-                            const V dv = V{} + d[r * m + o0 + o];
+                            const V dv = broadcast<T>(d[r * m + o0 + o]);
                             for (int j = 0; j < GB; ++j) {
                                 acc[o][j] += dv * iv[j];
                             }
