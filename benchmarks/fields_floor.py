@@ -15,7 +15,8 @@ native RK2, the native RK2 alone, neither) are measured in alternate blocks of o
 taking its fastest block.
 
 Run it alone on the machine. Usage:
-.venv/bin/python benchmarks/fields_floor.py --run runs/demo/trace [--fields run|bf16|fp32] [--json F]
+.venv/bin/python benchmarks/fields_floor.py --run runs/demo/trace [--fields run|bf16|fp32] [--isa native|avx2]
+    [--json F]
 """
 
 from __future__ import annotations
