@@ -213,8 +213,8 @@ void product(const std::vector<Pair<T>>& pairs, const T* init, int64_t n, int64_
     });
 }
 
-// dW [M, K] = D^T In and db [M] = column sums of D, over n rows of D [n, M] and In [n, K] (padded
-// widths), by chunks of CHUNK_ROWS rows summed in order.
+// dW [M, K] = D^T In and (unless db is null) db [M] = column sums of D, over n rows of D [n, M] and
+// In [n, K] (padded widths), by chunks of CHUNK_ROWS rows summed in order.
 template <typename T>
 void weight_gradient(const T* d, int64_t m, const T* in, int64_t k, int64_t n, T* dw, T* db) {
     using V = typename VT<T>::v;
@@ -250,7 +250,7 @@ void weight_gradient(const T* d, int64_t m, const T* in, int64_t k, int64_t n, T
                     }
                 }
             }
-            for (int64_t v = 0; v < m / L; ++v) {
+            for (int64_t v = 0; db != nullptr && v < m / L; ++v) {
                 V s{};
                 for (int64_t r = r0; r < r1; ++r) {
                     s += loadv(d + r * m + v * L);
@@ -260,13 +260,15 @@ void weight_gradient(const T* d, int64_t m, const T* in, int64_t k, int64_t n, T
         }
     });
     std::fill(dw, dw + m * k, T(0));
-    std::fill(db, db + m, T(0));
+    if (db != nullptr) {
+        std::fill(db, db + m, T(0));
+    }
     for (int64_t c = 0; c < chunks; ++c) {
         const T* pw = partial.data() + c * (m * k + m);
         for (int64_t i = 0; i < m * k; ++i) {
             dw[i] += pw[i];
         }
-        for (int64_t i = 0; i < m; ++i) {
+        for (int64_t i = 0; db != nullptr && i < m; ++i) {
             db[i] += pw[m * k + i];
         }
     }
@@ -430,12 +432,10 @@ std::vector<at::Tensor> mlp_backward(
                                       db.data_ptr<scalar_t>());
             grads[i] = dw.narrow(0, 0, weights[i].size(0)).narrow(1, 0, weights[i].size(1)).to(weights[i].scalar_type());
             grads[layers + i] = db.narrow(0, 0, weights[i].size(0)).to(weights[i].scalar_type());
-            at::Tensor ds;
-            if (i == skip_layer) {
-                ds = at::empty({m, input.size(1)}, input.options());
-                at::Tensor dsb = at::empty({m}, input.options());
+            if (i == skip_layer) {  // (its bias is the layer's: db above)
+                at::Tensor ds = at::empty({m, input.size(1)}, input.options());
                 weight_gradient<scalar_t>(dz.data_ptr<scalar_t>(), m, input.data_ptr<scalar_t>(), input.size(1), n,
-                                          ds.data_ptr<scalar_t>(), dsb.data_ptr<scalar_t>());
+                                          ds.data_ptr<scalar_t>(), nullptr);
                 grads[2 * layers] = ds.narrow(0, 0, skip_weight->size(0)).narrow(1, 0, skip_weight->size(1))
                                         .to(skip_weight->scalar_type());
             }
