@@ -48,10 +48,10 @@ stamp "train the scene on CUDA"
 run="$out/run"
 limit=()
 [ "$budget" -gt 0 ] && limit=(timeout $((budget - (SECONDS - start) - 60)))
-"${limit[@]}" $py -m tracegs.cli train --data "$scene" --run "$run" --device cuda 2>&1 |
+"${limit[@]}" $py -m tracegs train --data "$scene" --run "$run" --device cuda 2>&1 |
     tr '\r' '\n' | grep -v "it/s\]$" | tail -5
 stamp "evaluate"
-$py -m tracegs.cli eval --run "$run" --device cuda --no-lpips --no-save-images --json "$out/eval.json" 2>&1 | tail -3
+$py -m tracegs eval --run "$run" --device cuda --no-lpips --no-save-images --json "$out/eval.json" 2>&1 | tail -3
 # keep what re-evaluates the run elsewhere (e.g. on a CPU): its config, checkpoint, log and summary
 find "$run" -maxdepth 1 -type f ! -name config.json ! -name checkpoint.pt ! -name summary.json \
     ! -name log.jsonl -delete
