@@ -31,6 +31,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <memory>
 #include <type_traits>
 #include <utility>
 #include <vector>
@@ -213,18 +214,20 @@ void product(const std::vector<Pair<T>>& pairs, const T* init, int64_t n, int64_
     });
 }
 
-// dW [M, K] = D^T In and (unless db is null) db [M] = column sums of D, over n rows of D [n, M] and
-// In [n, K] (padded widths), by chunks of CHUNK_ROWS rows summed in order.
+// dW = D^T In and (unless db is null) db = column sums of D, over n rows of D [n, M] and In [n, K]
+// (padded widths), by chunks of CHUNK_ROWS rows summed in order; written unpadded: dw [m_out, k_out]
+// (contiguous) and db [m_out].
 template <typename T>
-void weight_gradient(const T* d, int64_t m, const T* in, int64_t k, int64_t n, T* dw, T* db) {
+void weight_gradient(const T* d, int64_t m, const T* in, int64_t k, int64_t n, T* dw, T* db, int64_t m_out,
+                     int64_t k_out) {
     using V = typename VT<T>::v;
     constexpr int64_t L = LANES<T>;
     const int64_t chunks = std::max<int64_t>(1, (n + CHUNK_ROWS - 1) / CHUNK_ROWS);
-    std::vector<T> partial(chunks * (m * k + m));
+    std::unique_ptr<T[]> partial(new T[chunks * (m * k + m)]);  // (every read element is written first)
     const int64_t kv = k / L;
     at::parallel_for(0, chunks, 1, [&](int64_t c0, int64_t c1) {
         for (int64_t c = c0; c < c1; ++c) {
-            T* pw = partial.data() + c * (m * k + m);
+            T* pw = partial.get() + c * (m * k + m);
             T* pb = pw + m * k;
             const int64_t r0 = c * CHUNK_ROWS, r1 = std::min(n, r0 + CHUNK_ROWS);
             for (int64_t o0 = 0; o0 < m; o0 += OB) {
@@ -259,37 +262,62 @@ void weight_gradient(const T* d, int64_t m, const T* in, int64_t k, int64_t n, T
             }
         }
     });
-    std::fill(dw, dw + m * k, T(0));
-    if (db != nullptr) {
-        std::fill(db, db + m, T(0));
-    }
-    for (int64_t c = 0; c < chunks; ++c) {
-        const T* pw = partial.data() + c * (m * k + m);
-        for (int64_t i = 0; i < m * k; ++i) {
-            dw[i] += pw[i];
+    for (int64_t o = 0; o < m_out; ++o) {
+        for (int64_t j = 0; j < k_out; ++j) {
+            T sum = T(0);
+            for (int64_t c = 0; c < chunks; ++c) {
+                sum += partial[c * (m * k + m) + o * k + j];
+            }
+            dw[o * k_out + j] = sum;
         }
-        for (int64_t i = 0; db != nullptr && i < m; ++i) {
-            db[i] += pw[m * k + i];
+        if (db != nullptr) {
+            T sum = T(0);
+            for (int64_t c = 0; c < chunks; ++c) {
+                sum += partial[c * (m * k + m) + m * k + o];
+            }
+            db[o] = sum;
         }
     }
 }
 
-// A matrix [rows, cols] (any strides) copied into a zero-padded [padded rows, padded cols] buffer,
-// transposed if asked ([cols, rows] -> its transpose's padding).
-at::Tensor pack(const at::Tensor& w, bool transpose, int64_t keep_rows = -1) {
-    at::Tensor src = transpose ? w.t() : w;
-    if (keep_rows >= 0 && keep_rows < src.size(0)) {
-        src = src.narrow(0, 0, keep_rows);
+inline at::Tensor as_type(const at::Tensor& t, at::ScalarType type) {
+    return t.scalar_type() == type ? t : t.to(type);
+}
+
+// A matrix [rows, cols] (any strides and floating type) copied as T into a zero-padded [padded rows,
+// padded cols] buffer, transposed if asked ([cols, rows] -> its transpose's padding), its rows from
+// keep_rows on left zero. Plain loops, no ATen ops: the op packs every layer each call.
+template <typename T>
+at::Tensor pack(const at::Tensor& w0, bool transpose, int64_t keep_rows = -1) {
+    constexpr auto type = c10::CppTypeToScalarType<T>::value;
+    const at::Tensor w = as_type(w0, type);
+    const int64_t rows = w.size(transpose ? 1 : 0), cols = w.size(transpose ? 0 : 1);
+    const int64_t rs = w.stride(transpose ? 1 : 0), cs = w.stride(transpose ? 0 : 1);
+    const int64_t kept = keep_rows >= 0 && keep_rows < rows ? keep_rows : rows;
+    const int64_t pc = padded(cols);
+    at::Tensor out = at::empty({padded(rows), pc}, w.options());
+    T* o = out.data_ptr<T>();
+    const T* src = w.data_ptr<T>();
+    std::fill(o, o + out.numel(), T(0));
+    for (int64_t r = 0; r < kept; ++r) {
+        for (int64_t c = 0; c < cols; ++c) {
+            o[r * pc + c] = src[r * rs + c * cs];
+        }
     }
-    at::Tensor out = at::zeros({padded(transpose ? w.size(1) : w.size(0)), padded(transpose ? w.size(0) : w.size(1))},
-                               w.options());
-    out.narrow(0, 0, src.size(0)).narrow(1, 0, src.size(1)).copy_(src);
     return out;
 }
 
-at::Tensor pad_vector(const at::Tensor& b) {
-    at::Tensor out = at::zeros({padded(b.size(0))}, b.options());
-    out.narrow(0, 0, b.size(0)).copy_(b);
+template <typename T>
+at::Tensor pad_vector(const at::Tensor& b0) {
+    constexpr auto type = c10::CppTypeToScalarType<T>::value;
+    const at::Tensor b = as_type(b0, type);
+    at::Tensor out = at::empty({padded(b.size(0))}, b.options());
+    T* o = out.data_ptr<T>();
+    const T* src = b.data_ptr<T>();
+    std::fill(o, o + out.numel(), T(0));
+    for (int64_t i = 0; i < b.size(0); ++i) {
+        o[i] = src[i * b.stride(0)];
+    }
     return out;
 }
 
@@ -352,29 +380,31 @@ std::vector<at::Tensor> mlp_forward(
     TORCH_CHECK(x.dim() == 2 && (x.scalar_type() == at::kFloat || x.scalar_type() == at::kDouble),
                 "mlp_forward: x must be [N, E] float32 or float64");
     const int64_t n = x.size(0);
-    const at::Tensor input = pack(x, false);  // [N padded to PAD rows, E padded]
-    std::vector<at::Tensor> saved{at::Tensor(), input};
-    at::Tensor h = input;
+    std::vector<at::Tensor> saved{at::Tensor()};
+    at::Tensor h;
     AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "mlp_forward", [&] {
+        const at::Tensor input = pack<scalar_t>(x, false);  // [N padded to PAD rows, E padded]
+        const int64_t rows = input.size(0);
+        saved.push_back(input);
+        h = input;
         for (int64_t i = 0; i < layers; ++i) {
             TORCH_CHECK(weights[i].size(1) == (i == 0 ? x.size(1) : weights[i - 1].size(0)),
                         "mlp_forward: layer ", i, " does not take the previous layer's width");
-            const at::Tensor wt = pack(weights[i].to(x.scalar_type()), true);  // [K padded, O padded]
-            const at::Tensor b = pad_vector(biases[i].to(x.scalar_type()));
+            const at::Tensor wt = pack<scalar_t>(weights[i], true);  // [K padded, O padded]
+            const at::Tensor b = pad_vector<scalar_t>(biases[i]);
             std::vector<Pair<scalar_t>> pairs{{h.data_ptr<scalar_t>(), h.size(1), wt.data_ptr<scalar_t>(), wt.size(1), wt.size(0)}};
             at::Tensor st;
             if (i == skip_layer) {
-                st = pack(skip_weight->to(x.scalar_type()), true);
+                st = pack<scalar_t>(*skip_weight, true);
                 pairs.push_back({input.data_ptr<scalar_t>(), input.size(1), st.data_ptr<scalar_t>(), st.size(1), st.size(0)});
             }
             const int64_t m = wt.size(1);
             const int64_t act = activates(i, layers, last_activation) ? activation : NONE;
-            at::Tensor z = at::empty({input.size(0), m}, x.options());
+            at::Tensor z = at::empty({rows, m}, input.options());
             at::Tensor out = act == SILU ? at::empty_like(z) : z;
-            if (input.size(0) > n) {  // the padding rows stay zero
-                z.narrow(0, n, input.size(0) - n).zero_();
-                out.narrow(0, n, input.size(0) - n).zero_();
-            }
+            // the padding rows stay zero
+            std::fill(z.data_ptr<scalar_t>() + n * m, z.data_ptr<scalar_t>() + rows * m, scalar_t(0));
+            std::fill(out.data_ptr<scalar_t>() + n * m, out.data_ptr<scalar_t>() + rows * m, scalar_t(0));
             with_activation<scalar_t>(act, [&](auto a) {
                 product<scalar_t>(pairs, b.data_ptr<scalar_t>(), n, m,
                                   ForwardStore<scalar_t, decltype(a)::value>{z.data_ptr<scalar_t>(), out.data_ptr<scalar_t>(), m});
@@ -410,8 +440,16 @@ std::vector<at::Tensor> mlp_backward(
         // dz of the last layer: the incoming gradient, padded, times its activation's derivative
         const int64_t last = layers - 1;
         const int64_t m_last = saved[2 + 2 * last].size(1);
-        at::Tensor dz = at::zeros({rows, m_last}, input.options());
-        dz.narrow(0, 0, n).narrow(1, 0, grad_out.size(1)).copy_(grad_out);
+        at::Tensor dz = at::empty({rows, m_last}, input.options());
+        {
+            scalar_t* p = dz.data_ptr<scalar_t>();
+            const scalar_t* g = grad_out.data_ptr<scalar_t>();
+            const int64_t o = grad_out.size(1), gs = grad_out.stride(0);
+            std::fill(p, p + rows * m_last, scalar_t(0));
+            for (int64_t r = 0; r < n; ++r) {
+                std::copy(g + r * gs, g + r * gs + o, p + r * m_last);
+            }
+        }
         if (activates(last, layers, last_activation)) {
             const at::Tensor& s = saved[activation == SILU ? 2 + 2 * last : 3 + 2 * last];
             with_activation<scalar_t>(activation, [&](auto a) {
@@ -426,24 +464,24 @@ std::vector<at::Tensor> mlp_backward(
         for (int64_t i = last; i >= 0; --i) {
             const at::Tensor& in = i == 0 ? input : saved[3 + 2 * (i - 1)];  // h_{i-1}, padded
             const int64_t m = dz.size(1), k = in.size(1);
-            at::Tensor dw = at::empty({m, k}, input.options());
-            at::Tensor db = at::empty({m}, input.options());
+            const int64_t o_real = weights[i].size(0), k_real = weights[i].size(1);
+            at::Tensor dw = at::empty({o_real, k_real}, input.options());
+            at::Tensor db = at::empty({o_real}, input.options());
             weight_gradient<scalar_t>(dz.data_ptr<scalar_t>(), m, in.data_ptr<scalar_t>(), k, n, dw.data_ptr<scalar_t>(),
-                                      db.data_ptr<scalar_t>());
-            grads[i] = dw.narrow(0, 0, weights[i].size(0)).narrow(1, 0, weights[i].size(1)).to(weights[i].scalar_type());
-            grads[layers + i] = db.narrow(0, 0, weights[i].size(0)).to(weights[i].scalar_type());
+                                      db.data_ptr<scalar_t>(), o_real, k_real);
+            grads[i] = as_type(dw, weights[i].scalar_type());
+            grads[layers + i] = as_type(db, weights[i].scalar_type());
             if (i == skip_layer) {  // (its bias is the layer's: db above)
-                at::Tensor ds = at::empty({m, input.size(1)}, input.options());
+                at::Tensor ds = at::empty({skip_weight->size(0), skip_weight->size(1)}, input.options());
                 weight_gradient<scalar_t>(dz.data_ptr<scalar_t>(), m, input.data_ptr<scalar_t>(), input.size(1), n,
-                                          ds.data_ptr<scalar_t>(), nullptr);
-                grads[2 * layers] = ds.narrow(0, 0, skip_weight->size(0)).narrow(1, 0, skip_weight->size(1))
-                                        .to(skip_weight->scalar_type());
+                                          ds.data_ptr<scalar_t>(), nullptr, ds.size(0), ds.size(1));
+                grads[2 * layers] = as_type(ds, skip_weight->scalar_type());
             }
             // the input gradients read the rows before stop_from only
             const int64_t keep = i == last && stop_from >= 0 ? stop_from : -1;
             const scalar_t* dzp = dz.data_ptr<scalar_t>();
             if (wants_x && (i == 0 || i == skip_layer)) {
-                const at::Tensor w = pack(i == 0 ? weights[0].to(type) : skip_weight->to(type), false, keep);
+                const at::Tensor w = pack<scalar_t>(i == 0 ? weights[0] : *skip_weight, false, keep);
                 if (!dx.defined()) {
                     dx = at::zeros({rows, input.size(1)}, input.options());
                 }
@@ -458,9 +496,9 @@ std::vector<at::Tensor> mlp_backward(
                 break;
             }
             // dz_{i-1} = (dz_i W_i) act'(z_{i-1})
-            const at::Tensor w = pack(weights[i].to(type), false, keep);  // [O padded, K padded]
+            const at::Tensor w = pack<scalar_t>(weights[i], false, keep);  // [O padded, K padded]
             at::Tensor next = at::empty({rows, k}, input.options());  // (rows < n: all written below)
-            next.narrow(0, n, rows - n).zero_();
+            std::fill(next.data_ptr<scalar_t>() + n * k, next.data_ptr<scalar_t>() + rows * k, scalar_t(0));
             const at::Tensor& s = saved[activation == SILU ? 2 + 2 * (i - 1) : 3 + 2 * (i - 1)];
             std::vector<Pair<scalar_t>> pairs{{dzp, m, w.data_ptr<scalar_t>(), w.size(1), w.size(0)}};
             with_activation<scalar_t>(activation, [&](auto a) {
