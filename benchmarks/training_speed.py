@@ -1,6 +1,7 @@
 """Where a training step's time goes, on this CPU: the SSIM of the loss (pytorch-msssim against the
-native kernel), the step's parts with 1-4 views per step, and a step beside a busy core with two
-threads against the thread count `train/threads.py` chooses.
+native kernel), the step's parts with 1-4 views per step, the fields in bf16 against float32 (where the
+CPU has bf16 in hardware), and a step beside a busy core with two threads against the thread count
+`train/threads.py` chooses.
 
 The step timings run the steps of a trained run (its checkpoint, late in stage 2, where the demo spends
 most of its time) on a copy of the run folder; nothing of the run is changed. Run it alone on the
@@ -27,6 +28,7 @@ from tracegs.render.ssim import training_ssim
 from tracegs.results import make_record, write_record
 from tracegs.train.threads import ThreadPolicy
 from tracegs.train.trainer import Trainer
+from tracegs.utils import cpu_flags
 
 
 def ssim_ms(fn, size: int, threads: int, repeats: int = 300) -> float:
@@ -75,6 +77,28 @@ def time_steps(trainer: Trainer, steps: int, threads: ThreadPolicy | None = None
     }
 
 
+def dtype_rows(
+    run: Path, work: Path, data: Path | None, steps: int, threads: int, blocks: int = 6
+) -> list[dict]:
+    """Late steps with the fields in bf16 (autocast) and in float32 (the fused MLPs where they apply),
+    in alternate blocks of one process: each its fastest block (the host's drift cancels)."""
+    torch.set_num_threads(threads)
+    trainers = {}
+    for dtype in ("bf16", "float32"):
+        trainers[dtype] = trainer_at(run, work / dtype, 0.75, data)
+        trainers[dtype].model.bf16 = dtype == "bf16"
+    best: dict[str, dict] = {}
+    for block in range(2 * blocks):
+        dtype = ("bf16", "float32")[block % 2]
+        timed = time_steps(trainers[dtype], max(20, steps // 4))
+        if timed["ms_per_step"] < best.get(dtype, {"ms_per_step": float("inf")})["ms_per_step"]:
+            best[dtype] = timed
+    return [
+        {"what": "training step, the fields' dtype", "setting": f"{dtype}, {threads} thread(s)", **timed}
+        for dtype, timed in best.items()
+    ]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--run", type=Path, required=True, help="a trained run folder (e.g. the demo's)")
@@ -104,6 +128,10 @@ def main() -> None:
                 {"what": "training step", "setting": f"{views} view(s)", **time_steps(trainer, args.steps)}
             )
         alone = rows[-4]["ms_per_step"]
+        if cpu_flags() & {"amx_bf16", "avx512_bf16"}:  # (elsewhere bf16 is emulated, far slower)
+            for threads in sorted({1, cores}):
+                rows += dtype_rows(args.run, Path(tmp), args.data, args.steps, threads)
+            torch.set_num_threads(cores)
         hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
         try:
             time.sleep(1.0)
@@ -130,11 +158,13 @@ def main() -> None:
             "training-speed",
             rows,
             f"python benchmarks/training_speed.py --run {args.run}",
-            title="Where a training step's time goes: SSIM, views per step, a busy core",
+            title="Where a training step's time goes: SSIM, views per step, the fields' dtype, a busy core",
             notes=(
                 f"Steps of the trained run {args.run} resumed at 3/4 of its steps; ms per step and its "
                 "parts (fields, raster_forward incl. the loss, backward, optimizer). `speed_vs_alone`: "
-                "the 1-view step alone over the step beside a busy core (another process spinning)."
+                "the 1-view step alone over the step beside a busy core (another process spinning). The fields' "
+                "dtype rows: bf16 autocast against float32 (the fused MLPs where they apply), alternate blocks "
+                "of one process, each its fastest."
             ),
         )
         write_record(args.json, record)

@@ -1,7 +1,7 @@
 """The fields' MLPs as one native op forward and one backward on the CPU (``csrc/mlp_cpu.cpp``).
 
 ``DeformationField`` and ``DynamicsField`` take this path by themselves where it applies (``applies``:
-a CPU, float32 or float64 fields, more than one point, the extension built with AVX-512) and, with
+a CPU, float32 or float64 fields, more than one point, the extension built with AVX2 or AVX-512) and, with
 ``ENABLED = False``, run their PyTorch layers. Both compute the same function: values and gradients
 agree to float rounding (tests/models/test_fused_mlp.py).
 
@@ -23,10 +23,9 @@ ENABLED = True
 
 ACTIVATION_CODES = {"relu": 0, "silu": 1}
 
-MIN_VECTOR_BYTES = 64
-"""The fields take the op where it was built with vectors at least this wide: with AVX-512 (32
-registers) its products beat ATen's, with AVX2 (16) they do not yet (docs/DESIGN.md, "Fused float32
-MLPs")."""
+MIN_VECTOR_BYTES = 32
+"""The fields take the op where it was built with vectors at least this wide: AVX-512 or AVX2, where
+it beats ATen's layers (docs/DESIGN.md, "Fused float32 MLPs"); an SSE or NEON build is not measured."""
 
 
 def applies(x: torch.Tensor) -> bool:
