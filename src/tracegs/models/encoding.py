@@ -57,11 +57,11 @@ def linear_of_parts(
     return product_of_parts(layer.weight, layer.bias, parts)
 
 
-def product_of_parts(
+def fold_single_rows(
     weight: torch.Tensor, bias: torch.Tensor | None, parts: list[tuple[torch.Tensor, slice | torch.Tensor]]
-) -> torch.Tensor:
-    """``linear_of_parts`` with the layer given as its ``weight`` [O, E] and ``bias`` [O] (e.g. two
-    layers on the same input stacked into one product)."""
+) -> tuple[torch.Tensor | None, list[tuple[torch.Tensor, torch.Tensor]]]:
+    """The parts of ``product_of_parts`` with a single row folded into the bias (then [1, O]): that
+    bias and the other parts as (values, their weight columns)."""
     rows = []
     for values, columns in parts:
         part_weight = weight[:, columns]
@@ -69,6 +69,15 @@ def product_of_parts(
             bias = torch.nn.functional.linear(values, part_weight, bias)
         else:
             rows.append((values, part_weight))
+    return bias, rows
+
+
+def product_of_parts(
+    weight: torch.Tensor, bias: torch.Tensor | None, parts: list[tuple[torch.Tensor, slice | torch.Tensor]]
+) -> torch.Tensor:
+    """``linear_of_parts`` with the layer given as its ``weight`` [O, E] and ``bias`` [O] (e.g. two
+    layers on the same input stacked into one product)."""
+    bias, rows = fold_single_rows(weight, bias, parts)
     if not rows:  # a single point: every part was folded, the result is the bias row
         return bias
     (values, part_weight), *rest = rows

@@ -15,6 +15,7 @@ import functools
 import torch
 
 from ..cpp import EXTENSIONS
+from .encoding import fold_single_rows
 
 EXTENSION = EXTENSIONS["tracegs_mlp_cpu"]
 
@@ -113,16 +114,11 @@ def fold_parts(
     """A first layer on parts of its input (``encoding.product_of_parts``' arguments) as the fused
     op's ``(x, weight, bias)``: the single-row parts (a time shared by every point) folded into the
     bias, the others concatenated with their weight columns. ``x`` is None when every part folded."""
-    values, columns = [], []
-    for part, cols in parts:
-        part_weight = weight[:, cols]
-        if part.shape[0] == 1:
-            bias = torch.nn.functional.linear(part, part_weight, bias).reshape(-1)
-        else:
-            values.append(part)
-            columns.append(part_weight)
-    if not values:
+    bias, rows = fold_single_rows(weight, bias, parts)
+    bias = bias.reshape(-1)
+    if not rows:
         return None, None, bias
-    if len(values) == 1:
-        return values[0], columns[0], bias
+    if len(rows) == 1:
+        return *rows[0], bias
+    values, columns = zip(*rows, strict=True)
     return torch.cat(values, dim=-1), torch.cat(columns, dim=-1), bias

@@ -404,7 +404,9 @@ std::vector<at::Tensor> mlp_forward(
             at::Tensor out = act == SILU ? at::empty_like(z) : z;
             // the padding rows stay zero
             std::fill(z.data_ptr<scalar_t>() + n * m, z.data_ptr<scalar_t>() + rows * m, scalar_t(0));
-            std::fill(out.data_ptr<scalar_t>() + n * m, out.data_ptr<scalar_t>() + rows * m, scalar_t(0));
+            if (act == SILU) {  // (else out is z)
+                std::fill(out.data_ptr<scalar_t>() + n * m, out.data_ptr<scalar_t>() + rows * m, scalar_t(0));
+            }
             with_activation<scalar_t>(act, [&](auto a) {
                 product<scalar_t>(pairs, b.data_ptr<scalar_t>(), n, m,
                                   ForwardStore<scalar_t, decltype(a)::value>{z.data_ptr<scalar_t>(), out.data_ptr<scalar_t>(), m});
