@@ -11,7 +11,8 @@ dtypes) are also timed replayed alone: what the fields would cost if every other
 
 The loop runs on a heap that keeps its freed memory (glibc ``mallopt``), as a training's grown heap
 does (0-5 page faults a step); the faults per step are reported. The kernels (the fused MLP with the
-native RK2, the native RK2 alone, neither) are measured in alternate blocks of one process, each row
+other native ops: the RK2, the positional encoding, f_defo's output applied; those without the fused
+MLP; none) are measured in alternate blocks of one process, each row
 taking its fastest block.
 
 Run it alone on the machine. Usage:
@@ -36,7 +37,7 @@ import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils.flop_counter import FlopCounterMode
 
-from tracegs.models import fused_mlp
+from tracegs.models import deformation, encoding, fused_mlp
 from tracegs.physics import fused
 from tracegs.results import make_record, write_record
 from tracegs.run import load_run
@@ -125,13 +126,15 @@ def gemms_alone_ms(model, t_prime: float, t: float, weights, blocks: int = 6, st
     return best
 
 
-KERNELS = {"fused MLP, native RK2": (True, True), "native RK2": (False, True), "pytorch": (False, False)}
-"""Rows: the field MLPs' fused op (``models/fused_mlp.py``; float32 only) and the native RK2
-(``physics/fused.py``) on or off."""
+KERNELS = {"fused MLP + native ops": (True, True), "native ops": (False, True), "pytorch": (False, False)}
+"""Rows: the field MLPs' fused op (``models/fused_mlp.py``; float32 only) on or off, and the other
+native ops on or off: the RK2 (``physics/fused.py``), the positional encoding (``models/encoding.py``)
+and f_defo's output applied to the Gaussians (``models/deformation.py``, ``deform_rows``)."""
 
 
 def use_kernels(name: str) -> None:
-    fused_mlp.ENABLED, fused.ENABLED = KERNELS[name]
+    fused_mlp.ENABLED, native = KERNELS[name]
+    fused.ENABLED = encoding.NATIVE = deformation.NATIVE_DEFORM = native
     fused_mlp.MIN_VECTOR_BYTES = 0  # (measured on any build: the fields take it with AVX-512 only)
 
 
@@ -160,14 +163,14 @@ def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]
         for _ in range(steps):
             fields_step(model, t_prime, t, weights)
         best[name] = min(best[name], 1000 * (time.perf_counter() - start) / steps)
-    use_kernels("fused MLP, native RK2")
+    use_kernels("fused MLP + native ops")
     faults = (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults) / (len(names) * blocks * steps)
     dtype = torch.bfloat16 if model.bf16 else torch.float32
     rate = gemm_rate(dtype)
     floor_ms = 1000 * flops / rate
     use_kernels("pytorch")
     gemms_ms = gemms_alone_ms(model, t_prime, t, weights)  # (the fused MLP runs its own products)
-    use_kernels("fused MLP, native RK2")
+    use_kernels("fused MLP + native ops")
     rows = model.moving_rows
     moving = model.gaussians["means"].shape[0] if rows is None else rows.numel()
     return [
@@ -257,8 +260,9 @@ def main() -> None:
                 "products by torch.utils.flop_counter; floor = those FLOPs at the rate of a 2048^2 matrix "
                 "product in the same dtype and threads; ratio = measured / floor; gemms_alone: the step's "
                 "own matrix products (shapes, strides, dtypes) replayed alone. measured: the fastest of six "
-                "blocks of 20 steps, the kernels in alternate blocks (fused MLP: float32 only; gemms_alone: the "
-                "PyTorch layers' products). "
+                "blocks of 20 steps, the kernels in alternate blocks (native ops: the RK2, the positional "
+                "encoding, f_defo's output applied to the Gaussians; fused MLP: float32 only; gemms_alone: "
+                "the PyTorch layers' products). "
                 f"The heap keeps freed memory (glibc mallopt: {'yes' if kept else 'not available'}), as a "
                 "training's grown heap does. The run: the README demo's (fan, cpu-fast), alone on the "
                 "cores."

@@ -204,3 +204,54 @@ def apply_deformation(
     (``s_t = exp(log_s0 + dlog_s) = s0 * exp(dlog_s)``).
     """
     return x0 + dx, quat_multiply(quat_normalize(dq), q0), log_s0 + dlog_s
+
+
+def deform_rows(
+    canonical: list[torch.Tensor],
+    rows: torch.Tensor | None,
+    dx: torch.Tensor,
+    dq: torch.Tensor,
+    dlog_s: torch.Tensor,
+) -> list[torch.Tensor]:
+    """``apply_deformation`` on the rows ``rows`` [M] of the canonical Gaussians ``canonical`` (means
+    [N, 3], quats [N, 4], log-scales [N, 3]; every row with None), the other rows kept: the three
+    tensors [N, ...]. ``dx``, ``dq``, ``dlog_s``: the field's outputs for those rows [M, ...].
+
+    Float32/64 on the CPU takes one native op forward and one backward (``csrc/mlp_cpu.cpp``, where
+    the extension is built); the same values and gradients to rounding (tests/models/test_fused_mlp.py)."""
+    ops = _deform_ops(canonical, dx, dq, dlog_s)
+    if ops is not None:
+        return list(_NativeDeform.apply(*canonical, rows, dx, dq, dlog_s, ops))
+    moved = apply_deformation(*(canonical if rows is None else [c[rows] for c in canonical]), dx, dq, dlog_s)
+    if rows is None:
+        return list(moved)
+    return [c.index_copy(0, rows, v) for c, v in zip(canonical, moved, strict=True)]
+
+
+NATIVE_DEFORM = True
+"""``deform_rows`` takes the native op where it applies (False: the PyTorch ops, to compare)."""
+
+
+def _deform_ops(canonical: list[torch.Tensor], *outputs: torch.Tensor):
+    tensors = [*canonical, *outputs]
+    dtype = tensors[0].dtype
+    if not NATIVE_DEFORM or dtype not in (torch.float32, torch.float64):
+        return None
+    if any(t.device.type != "cpu" or t.dtype != dtype or t.dim() != 2 for t in tensors):
+        return None
+    return fused_mlp.EXTENSION.load()
+
+
+class _NativeDeform(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, x0, q0, s0, rows, dx, dq, ds, ops):
+        ctx.save_for_backward(q0, rows, dq)
+        ctx.ops = ops
+        return tuple(ops.deform_forward(x0, q0, s0, rows, dx, dq, ds))
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, gx, gq, gs):
+        q0, rows, dq = ctx.saved_tensors
+        gq0, gdx, gdq, gds = ctx.ops.deform_backward(gq, gx, gs, q0, rows, dq)
+        return gx, gq0, gs, None, gdx, gdq, gds, None

@@ -13,12 +13,26 @@ def encoding_dim(in_dim: int, num_frequencies: int, include_input: bool = True) 
     return in_dim * (2 * num_frequencies + int(include_input))
 
 
+NATIVE = True
+"""Compute float32 encodings on the CPU with the native op (``csrc/mlp_cpu.cpp``) where it is built;
+False: always the ATen ops below (to compare)."""
+
+
 def positional_encoding(u: torch.Tensor, num_frequencies: int, include_input: bool = True) -> torch.Tensor:
     """``[u, sin(2^0 u), cos(2^0 u), ..., sin(2^(L-1) u), cos(2^(L-1) u)]`` [..., D (1 + 2L)].
 
     No pi factor (METHOD.md, as the authors' and Deformable 3DGS's embedder); the channel order is
-    the Deformable 3DGS one (frequency-major, then sin/cos, then input channel).
+    the Deformable 3DGS one (frequency-major, then sin/cos, then input channel). Float32 on the CPU
+    takes one native op (``NATIVE``; the same values to ~2e-7), else ATen's.
     """
+    ops = _native_ops(u)
+    if ops is not None:
+        flat = u.reshape(-1, u.shape[-1])
+        if u.requires_grad and torch.is_grad_enabled():
+            out = _NativeEncoding.apply(flat, num_frequencies, include_input, ops)
+        else:  # (the fields' inputs in training: no autograd node to make)
+            out = ops.positional_encoding(flat, num_frequencies, include_input)
+        return out.reshape(*u.shape[:-1], out.shape[-1])
     parts = [u] if include_input else []
     if num_frequencies > 0:
         freqs = u.new_tensor([2.0**k for k in range(num_frequencies)])  # [L] (exact powers of two)
@@ -26,6 +40,41 @@ def positional_encoding(u: torch.Tensor, num_frequencies: int, include_input: bo
         sincos = torch.stack([torch.sin(angles), torch.cos(angles)], dim=-2)  # [..., L, 2, D]
         parts.append(sincos.flatten(-3))
     return torch.cat(parts, dim=-1)
+
+
+def _native_ops(u: torch.Tensor):
+    """The native encoding's ops for ``u``, or None where ATen's apply (not float32 on the CPU, no
+    channels, ``NATIVE`` off, the extension not built)."""
+    if not NATIVE or u.device.type != "cpu" or u.dtype != torch.float32 or u.dim() == 0 or not u.shape[-1]:
+        return None
+    from ..cpp import EXTENSIONS  # (here: the extension loads, or builds, on the first encoding)
+
+    return EXTENSIONS["tracegs_mlp_cpu"].load()
+
+
+class _NativeEncoding(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, u, num_frequencies, include_input, ops):
+        out = ops.positional_encoding(u, num_frequencies, include_input)
+        if ctx.needs_input_grad[0]:
+            ctx.save_for_backward(out)  # (its sines and cosines give the derivative)
+        ctx.settings = (num_frequencies, include_input, u.shape[1])
+        return out
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_out):
+        (out,) = ctx.saved_tensors
+        num_frequencies, include_input, d = ctx.settings
+        first = d if include_input else 0
+        grad = grad_out[:, :d] if include_input else grad_out.new_zeros(out.shape[0], d)
+        if num_frequencies:
+            sincos = out[:, first:].reshape(-1, num_frequencies, 2, d)
+            g = grad_out[:, first:].reshape(-1, num_frequencies, 2, d)
+            freqs = out.new_tensor([2.0**k for k in range(num_frequencies)])[:, None]
+            # d sin(a u) = a cos(a u), d cos(a u) = -a sin(a u)
+            grad = grad + ((g[:, :, 0] * sincos[:, :, 1] - g[:, :, 1] * sincos[:, :, 0]) * freqs).sum(1)
+        return grad, None, None, None
 
 
 def time_rows(t: float | torch.Tensor, like: torch.Tensor) -> torch.Tensor:

@@ -18,7 +18,7 @@ from ..physics.free_body import median_spacing
 from ..physics.integrate import acceleration_consistency, integrate, params_in_world
 from ..render import rasterize
 from .colour import CameraColour
-from .deformation import apply_deformation, make_deformation_field
+from .deformation import deform_rows, make_deformation_field
 from .dynamics import DynamicsField
 
 
@@ -130,8 +130,9 @@ class TraceModel(nn.Module):
         if self.deformation is None:
             return [{name: g[name] for name in names} for _ in times]
         rows = self._moving_rows()
-        canonical = [g[name] if rows is None else g[name][rows] for name in names]
-        x0 = self.to_field_frame(canonical[0].detach() if self.cfg.deformation.detach_input else canonical[0])
+        canonical = [g[name] for name in names]
+        x0 = canonical[0].detach() if self.cfg.deformation.detach_input else canonical[0]
+        x0 = self.to_field_frame(x0 if rows is None else x0[rows])
         n = x0.shape[0]
         if len(times) == 1:  # one time for all points: the field takes it as a bias (``linear_of_parts``)
             x, t = x0, times[0]
@@ -143,11 +144,9 @@ class TraceModel(nn.Module):
         if self._frame_scale is not None:
             dx = dx.float() * self._frame_scale
         states = []
-        for k in range(len(times)):
+        for k in range(len(times)):  # (the static Gaussians keep their canonical rows)
             block = slice(k * n, (k + 1) * n)
-            moved = apply_deformation(*canonical, dx[block].float(), dq[block].float(), dlog_s[block].float())
-            if rows is not None:  # the static Gaussians keep their canonical rows
-                moved = [g[name].index_copy(0, rows, v) for name, v in zip(names, moved, strict=True)]
+            moved = deform_rows(canonical, rows, dx[block].float(), dq[block].float(), dlog_s[block].float())
             states.append(dict(zip(names, moved, strict=True)))
         return states
 

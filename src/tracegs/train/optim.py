@@ -48,6 +48,74 @@ def field_optimizer(groups: dict[str, list[nn.Parameter]], cfg) -> torch.optim.O
     return torch.optim.Adam(param_groups, eps=1e-15, fused=_fusable(params))
 
 
+def step_adams(optimizers: list[torch.optim.Optimizer | None]) -> None:
+    """``opt.step()`` for each of ``optimizers`` (None skipped): fused Adams with their state made
+    call torch's fused kernel themselves (one ``_foreach_add_`` for every step count, then one
+    ``_fused_adam_`` per group, as ``torch.optim.adam._fused_adam`` does), the others take ``step()``.
+    The same update to the bit; what it saves is ``Optimizer.step``'s wrappers, ~0.15 ms per call on
+    a CPU, with seven optimisers a step (docs/DESIGN.md, "Per-step overhead")."""
+    groups, steps = [], []
+    for opt in optimizers:
+        if opt is None:
+            continue
+        ready = _fused_ready(opt)
+        if ready is None:
+            opt.step()
+            continue
+        for group, (params, grads, avgs, squares, counts) in ready:
+            groups.append((group, params, grads, avgs, squares, counts))
+            steps += counts
+    if not groups:
+        return
+    torch._foreach_add_(steps, 1)
+    for group, params, grads, avgs, squares, counts in groups:
+        beta1, beta2 = group["betas"]
+        torch._fused_adam_(
+            params, grads, avgs, squares, [], counts, amsgrad=False, lr=group["lr"], beta1=beta1, beta2=beta2,
+            weight_decay=group["weight_decay"], eps=group["eps"], maximize=False,
+        )  # fmt: skip
+
+
+def _fused_ready(opt: torch.optim.Optimizer) -> list | None:
+    """Per group of ``opt``: its parameters with a gradient and their state tensors, where ``step_adams``
+    may call the fused kernel itself (a fused, plain Adam whose every such parameter has its state,
+    all on one device in one dtype); else None."""
+    if type(opt) is not torch.optim.Adam:
+        return None
+    ready = []
+    for group in opt.param_groups:
+        if (
+            not group.get("fused")
+            or group["amsgrad"]
+            or group["maximize"]
+            or group.get("decoupled_weight_decay")
+        ):
+            return None
+        if any(isinstance(v, torch.Tensor) for v in (group["lr"], *group["betas"])):
+            return None
+        params = [p for p in group["params"] if p.grad is not None]
+        states = [opt.state.get(p) for p in params]
+        if any(not s or "exp_avg" not in s for s in states):
+            return None  # (the first step makes the state)
+        if len({(p.device, p.dtype) for p in params}) > 1:
+            return None
+        if params:
+            ready.append(
+                (group, ([*params], [p.grad for p in params], [s["exp_avg"] for s in states],
+                         [s["exp_avg_sq"] for s in states], [s["step"] for s in states]))
+            )  # fmt: skip
+    return ready
+
+
+def zero_grads(optimizers: list[torch.optim.Optimizer | None]) -> None:
+    """``opt.zero_grad(set_to_none=True)`` for each of ``optimizers`` (None skipped), without its wrappers."""
+    for opt in optimizers:
+        if opt is not None:
+            for group in opt.param_groups:
+                for p in group["params"]:
+                    p.grad = None
+
+
 def colour_optimizer(colour: nn.Module | None, cfg) -> torch.optim.Optimizer | None:
     """Adam for the per-camera colours (``models/colour.py``), trained in both stages; None without."""
     return None if colour is None else torch.optim.Adam(colour.parameters(), lr=cfg.colour_lr, eps=1e-15)

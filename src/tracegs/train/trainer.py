@@ -66,6 +66,8 @@ from .optim import (
     means_lr,
     set_group_lrs,
     set_lr,
+    step_adams,
+    zero_grads,
 )
 from .report import describe, report_step, stage, summary
 from .scene_frame import capture_scale, default_aabb, field_frame
@@ -108,6 +110,7 @@ class Trainer:
         self.extent = scene_extent_from_cameras(self.data.camera_centers())
         self.aabb = default_aabb(cfg, self.data).to(self.device)
         self.static_views = self._static_views()
+        self._allowed: tuple = (None, [])  # the views of the current time range (``_dynamic_view``)
         self.static_fraction: float | None = None  # of the Gaussians marked static (stage2.skip_static)
         log = tqdm.write if progress else (lambda _message: None)
         gaussians = initial_gaussians(cfg, self.aabb, self.device, log, self.data.scene.frames)
@@ -157,8 +160,10 @@ class Trainer:
     def _dynamic_view(self, dyn_step: int) -> int:
         """A training image whose time lies in the current (growing) time range."""
         limit = self.time_limit(dyn_step) + 1e-9
-        allowed = [i for i, v in enumerate(self.data.views) if v.time <= limit]
-        return random.choice(allowed)
+        key = (limit, id(self.data), len(self.data.views))  # (the list changes with the time range only)
+        if self._allowed[0] != key:
+            self._allowed = (key, [i for i, v in enumerate(self.data.views) if v.time <= limit])
+        return random.choice(self._allowed[1])
 
     def _views_at_time(self, index: int) -> list:
         """View ``index`` and up to ``views_per_step`` - 1 other cameras' views at its time, at random."""
@@ -209,9 +214,7 @@ class Trainer:
             set_group_lrs(self.field_opt, {k: v * scale for k, v in fields.items()})
 
     def _zero_grads(self) -> None:
-        for opt in [*self.optimizers.values(), self.field_opt, self.colour_opt]:
-            if opt is not None:
-                opt.zero_grad(set_to_none=True)
+        zero_grads([*self.optimizers.values(), self.field_opt, self.colour_opt])
 
     def sh_degree(self) -> int:
         return min(self.cfg.sh_degree, self.step // max(self.cfg.sh_degree_interval, 1))
@@ -280,16 +283,9 @@ class Trainer:
         t_backward = self._clock()
         if not static and cfg.stage2.freeze_surroundings:
             hold_surroundings(self)
-        for opt in self.optimizers.values():
-            opt.step()
-            opt.zero_grad(set_to_none=True)
-        if not static and self.field_opt is not None:
-            self.field_opt.step()
-        if self.field_opt is not None:
-            self.field_opt.zero_grad(set_to_none=True)
-        if self.colour_opt is not None:
-            self.colour_opt.step()
-            self.colour_opt.zero_grad(set_to_none=True)
+        gaussians = list(self.optimizers.values())
+        step_adams([*gaussians, None if static else self.field_opt, self.colour_opt])
+        zero_grads([*gaussians, self.field_opt, self.colour_opt])
         report = self.strategy.step_post_backward(
             self.model.gaussians, self.optimizers, self.strategy_state, step, infos
         )

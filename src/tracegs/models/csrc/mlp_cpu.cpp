@@ -516,6 +516,188 @@ std::vector<at::Tensor> mlp_backward(
     return grads;
 }
 
+// ----- the fields' positional encoding ----------------------------------------------------------
+// [u, sin(2^0 u), cos(2^0 u), ..., sin(2^(L-1) u), cos(2^(L-1) u)] of u [N, D] (models/encoding.py's
+// layout), one op instead of ATen's ~8 with their [N, L, D] temporaries. The angles 2^k u are exact;
+// float sin and cos come from one reduction by pi/2 (three-part Cody-Waite constants, exact for
+// |x| < 2^15, std::sin beyond) and Cephes' minimax polynomials on [-pi/4, pi/4]: within ~2e-7 of the correctly
+// rounded values, vectorised over the flattened inputs (std::sin per element is ~20x slower).
+inline void sincos_v(VT<float>::v x, VT<float>::v& s, VT<float>::v& c) {
+    typedef int32_t vi __attribute__((vector_size(VBYTES)));
+    const VT<float>::v j = (x * 0.636619772f + 12582912.0f) - 12582912.0f;  // round(x 2 / pi)
+    const VT<float>::v r = ((x - j * 1.5703125f) - j * 4.837512969970703125e-4f) - j * 7.54978995489188216e-8f;
+    const VT<float>::v z = r * r;
+    const VT<float>::v sr = r + r * z * (-1.6666654611e-1f + z * (8.3321608736e-3f + z * -1.9515295891e-4f));
+    const VT<float>::v cr =
+        1.0f - 0.5f * z + z * z * (4.166664568298827e-2f + z * (-1.388731625493765e-3f + z * 2.443315711809948e-5f));
+    const vi q = __builtin_convertvector(j, vi);
+    const vi odd = (q & 1) != 0;
+    const VT<float>::v sv = odd ? cr : sr, cv = odd ? sr : cr;
+    s = (q & 2) != 0 ? -sv : sv;
+    c = ((q + 1) & 2) != 0 ? -cv : cv;
+}
+
+at::Tensor positional_encoding(const at::Tensor& u0, int64_t frequencies, bool include_input) {
+    TORCH_CHECK(u0.dim() == 2 && u0.scalar_type() == at::kFloat && u0.device().is_cpu(),
+                "positional_encoding: u must be a float32 CPU tensor [N, D]");
+    TORCH_CHECK(frequencies >= 0 && frequencies < 24, "positional_encoding: frequencies must be in [0, 24)");
+    const at::Tensor u = u0.contiguous();
+    const int64_t n = u.size(0), d = u.size(1), first = include_input ? d : 0;
+    const int64_t e = first + 2 * frequencies * d;
+    at::Tensor out = at::empty({n, e}, u.options());
+    const float* up = u.data_ptr<float>();
+    float* op = out.data_ptr<float>();
+    constexpr int64_t L = LANES<float>;
+    // flattened inputs j = row d + channel, a block of L at a time (the last one partly)
+    const int64_t blocks = (n * d + L - 1) / L;
+    at::parallel_for(0, blocks, 2048 / L, [&](int64_t b0, int64_t b1) {
+        for (int64_t b = b0; b < b1; ++b) {
+            const int64_t j0 = b * L, count = std::min<int64_t>(L, n * d - j0);
+            float lane[L] = {};
+            std::memcpy(lane, up + j0, count * sizeof(float));
+            int64_t base[L];
+            for (int64_t l = 0; l < count; ++l) {
+                base[l] = (j0 + l) / d * e + (j0 + l) % d;
+                if (include_input) {
+                    op[base[l]] = lane[l];
+                }
+            }
+            const VT<float>::v x = loadv(lane);
+            float scale = 1.0f;
+            float largest = 0.0f;
+            for (int64_t l = 0; l < count; ++l) {
+                largest = std::max(largest, std::fabs(lane[l]));
+            }
+            for (int64_t k = 0; k < frequencies; ++k, scale *= 2.0f) {
+                VT<float>::v s, c;
+                if (largest * scale < 32768.0f) {
+                    sincos_v(x * scale, s, c);
+                } else {  // beyond the reduction's exact range (never at the fields' scene sizes)
+                    for (int64_t l = 0; l < L; ++l) {
+                        s[l] = std::sin(lane[l] * scale);
+                        c[l] = std::cos(lane[l] * scale);
+                    }
+                }
+                const int64_t at_sin = first + 2 * k * d, at_cos = at_sin + d;
+                for (int64_t l = 0; l < count; ++l) {
+                    op[base[l] + at_sin] = s[l];
+                    op[base[l] + at_cos] = c[l];
+                }
+            }
+        }
+    });
+    return out;
+}
+
+// ----- f_defo's output applied to the Gaussians -------------------------------------------------
+// models/deformation.py's ``apply_deformation`` on rows ``rows`` of the canonical Gaussians (all rows
+// without it), the other rows kept: x = x0 + dx, q = normalize(dq) o q0 (Hamilton product),
+// log_s = log_s0 + dlog_s. One op forward and one backward instead of ~25 ATen ops and their autograd
+// nodes (the gathers of the rows, the quaternion's component products, the index copies back).
+// M: the rows the field moved.
+template <typename T>
+inline void hamilton(const T* a, const T* b, T* out) {
+    out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3];
+    out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2];
+    out[2] = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1];
+    out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0];
+}
+
+constexpr double NORM_EPS = 1e-12;  // physics/so3.py quat_normalize's clamp
+
+template <typename T>
+inline T unit(const T* q, T* p) {  // p = q / max(|q|, eps); returns that divisor
+    const T n = std::max<T>(std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]), T(NORM_EPS));
+    for (int c = 0; c < 4; ++c) {
+        p[c] = q[c] / n;
+    }
+    return n;
+}
+
+void check_rows(const c10::optional<at::Tensor>& rows, int64_t n, int64_t m) {
+    if (rows) {
+        TORCH_CHECK(rows->dim() == 1 && rows->scalar_type() == at::kLong && rows->size(0) == m,
+                    "deform: rows must be an int64 tensor of the moved rows' count");
+    } else {
+        TORCH_CHECK(m == n, "deform: without rows, every row moves");
+    }
+}
+
+std::vector<at::Tensor> deform_forward(const at::Tensor& x0, const at::Tensor& q0, const at::Tensor& s0,
+                                       const c10::optional<at::Tensor>& rows, const at::Tensor& dx,
+                                       const at::Tensor& dq, const at::Tensor& ds) {
+    const int64_t n = x0.size(0), m = dx.size(0);
+    check_rows(rows, n, m);
+    at::Tensor x = x0.contiguous().clone(), q = q0.contiguous().clone(), s = s0.contiguous().clone();
+    const at::Tensor dxc = dx.contiguous(), dqc = dq.contiguous(), dsc = ds.contiguous();
+    const at::Tensor index = rows ? rows->contiguous() : at::Tensor();
+    AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "deform_forward", [&] {
+        scalar_t *xp = x.data_ptr<scalar_t>(), *qp = q.data_ptr<scalar_t>(), *sp = s.data_ptr<scalar_t>();
+        const scalar_t *dxp = dxc.data_ptr<scalar_t>(), *dqp = dqc.data_ptr<scalar_t>(), *dsp = dsc.data_ptr<scalar_t>();
+        const int64_t* rp = rows ? index.data_ptr<int64_t>() : nullptr;
+        at::parallel_for(0, m, 2048, [&](int64_t i0, int64_t i1) {
+            for (int64_t i = i0; i < i1; ++i) {
+                const int64_t r = rp ? rp[i] : i;
+                TORCH_CHECK(r >= 0 && r < n, "deform: row index out of range");
+                scalar_t p[4], q_old[4];
+                unit(dqp + 4 * i, p);
+                std::copy(qp + 4 * r, qp + 4 * r + 4, q_old);
+                hamilton(p, q_old, qp + 4 * r);
+                for (int c = 0; c < 3; ++c) {
+                    xp[3 * r + c] += dxp[3 * i + c];
+                    sp[3 * r + c] += dsp[3 * i + c];
+                }
+            }
+        });
+    });
+    return {x, q, s};
+}
+
+// Gradients (g0 for x0 and log_s0 are the incoming ones, returned as they are):
+// q0: p* o gq on the moved rows; dq: (gp - p (p . gp)) / |dq| with gp = gq o q0*; dx, dlog_s: the rows.
+std::vector<at::Tensor> deform_backward(const at::Tensor& gq0_in, const at::Tensor& gx0, const at::Tensor& gs0,
+                                        const at::Tensor& q0_in, const c10::optional<at::Tensor>& rows,
+                                        const at::Tensor& dq_in) {
+    const int64_t n = q0_in.size(0), m = dq_in.size(0);
+    check_rows(rows, n, m);
+    const at::Tensor gq = gq0_in.contiguous(), gx = gx0.contiguous(), gs = gs0.contiguous();
+    const at::Tensor q0 = q0_in.contiguous(), dq = dq_in.contiguous();
+    const at::Tensor index = rows ? rows->contiguous() : at::Tensor();
+    at::Tensor gq_canonical = gq.clone();
+    at::Tensor gdx = at::empty({m, 3}, gx.options()), gdq = at::empty({m, 4}, gq.options());
+    at::Tensor gds = at::empty({m, 3}, gs.options());
+    AT_DISPATCH_FLOATING_TYPES(gq.scalar_type(), "deform_backward", [&] {
+        const scalar_t *gqp = gq.data_ptr<scalar_t>(), *gxp = gx.data_ptr<scalar_t>(), *gsp = gs.data_ptr<scalar_t>();
+        const scalar_t *q0p = q0.data_ptr<scalar_t>(), *dqp = dq.data_ptr<scalar_t>();
+        scalar_t *gcp = gq_canonical.data_ptr<scalar_t>(), *gdxp = gdx.data_ptr<scalar_t>();
+        scalar_t *gdqp = gdq.data_ptr<scalar_t>(), *gdsp = gds.data_ptr<scalar_t>();
+        const int64_t* rp = rows ? index.data_ptr<int64_t>() : nullptr;
+        at::parallel_for(0, m, 2048, [&](int64_t i0, int64_t i1) {
+            for (int64_t i = i0; i < i1; ++i) {
+                const int64_t r = rp ? rp[i] : i;
+                scalar_t p[4], conj[4], gp[4];
+                const scalar_t norm = unit(dqp + 4 * i, p);
+                const scalar_t* g = gqp + 4 * r;
+                const scalar_t p_conj[4] = {p[0], -p[1], -p[2], -p[3]};
+                hamilton(p_conj, g, gcp + 4 * r);
+                const scalar_t* q = q0p + 4 * r;
+                conj[0] = q[0], conj[1] = -q[1], conj[2] = -q[2], conj[3] = -q[3];
+                hamilton(g, conj, gp);
+                const bool clamped = norm <= scalar_t(NORM_EPS);  // (the clamp passes no norm gradient)
+                const scalar_t along = clamped ? scalar_t(0) : p[0] * gp[0] + p[1] * gp[1] + p[2] * gp[2] + p[3] * gp[3];
+                for (int c = 0; c < 4; ++c) {
+                    gdqp[4 * i + c] = (gp[c] - p[c] * along) / norm;
+                }
+                for (int c = 0; c < 3; ++c) {
+                    gdxp[3 * i + c] = gxp[3 * r + c];
+                    gdsp[3 * i + c] = gsp[3 * r + c];
+                }
+            }
+        });
+    });
+    return {gq_canonical, gdx, gdq, gds};
+}
+
 // The vector width the kernels were built for, in bytes (64: AVX-512, 32: AVX2, 16: SSE or NEON).
 int64_t vector_bytes() { return VBYTES; }
 
@@ -525,4 +707,7 @@ TORCH_LIBRARY(tracegs_mlp_cpu, m) {
     m.def("vector_bytes", &vector_bytes);
     m.def("mlp_forward", &mlp_forward);
     m.def("mlp_backward", &mlp_backward);
+    m.def("positional_encoding", &positional_encoding);
+    m.def("deform_forward", &deform_forward);
+    m.def("deform_backward", &deform_backward);
 }
