@@ -218,7 +218,7 @@ def deform_rows(
     tensors [N, ...]. ``dx``, ``dq``, ``dlog_s``: the field's outputs for those rows [M, ...].
 
     Float32/64 on the CPU takes one native op forward and one backward (``csrc/mlp_cpu.cpp``, where
-    the extension is built); the same values and gradients to rounding (tests/models/test_fused_mlp.py)."""
+    the extension is built); the same values and gradients to rounding (tests/models/test_native_field_ops.py)."""
     ops = _deform_ops(canonical, dx, dq, dlog_s)
     if ops is not None:
         return list(_NativeDeform.apply(*canonical, rows, dx, dq, dlog_s, ops))

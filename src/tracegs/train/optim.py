@@ -53,7 +53,7 @@ def step_adams(optimizers: list[torch.optim.Optimizer | None]) -> None:
     call torch's fused kernel themselves (one ``_foreach_add_`` for every step count, then one
     ``_fused_adam_`` per group, as ``torch.optim.adam._fused_adam`` does), the others take ``step()``.
     The same update to the bit; what it saves is ``Optimizer.step``'s wrappers, ~0.15 ms per call on
-    a CPU, with seven optimisers a step (docs/DESIGN.md, "Per-step overhead")."""
+    a CPU, with seven optimisers a step (docs/DESIGN.md, "torch's fused Adam called directly")."""
     groups, steps = [], []
     for opt in optimizers:
         if opt is None:
