@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import torch
 
+from ..cpp import EXTENSIONS
+
 
 def encoding_dim(in_dim: int, num_frequencies: int, include_input: bool = True) -> int:
     """Channels of ``positional_encoding`` for ``in_dim`` inputs: ``D (1 + 2L)`` (or ``2 D L``)."""
@@ -35,7 +37,7 @@ def positional_encoding(u: torch.Tensor, num_frequencies: int, include_input: bo
         return out.reshape(*u.shape[:-1], out.shape[-1])
     parts = [u] if include_input else []
     if num_frequencies > 0:
-        freqs = u.new_tensor([2.0**k for k in range(num_frequencies)])  # [L] (exact powers of two)
+        freqs = _frequencies(u, num_frequencies)  # [L]
         angles = u[..., None, :] * freqs[:, None]  # [..., L, D]
         sincos = torch.stack([torch.sin(angles), torch.cos(angles)], dim=-2)  # [..., L, 2, D]
         parts.append(sincos.flatten(-3))
@@ -47,9 +49,12 @@ def _native_ops(u: torch.Tensor):
     channels, ``NATIVE`` off, the extension not built)."""
     if not NATIVE or u.device.type != "cpu" or u.dtype != torch.float32 or u.dim() == 0 or not u.shape[-1]:
         return None
-    from ..cpp import EXTENSIONS  # (here: the extension loads, or builds, on the first encoding)
-
     return EXTENSIONS["tracegs_mlp_cpu"].load()
+
+
+def _frequencies(like: torch.Tensor, num_frequencies: int) -> torch.Tensor:
+    """[L] the encoding's angular frequencies 2^k (exact powers of two), like ``like``."""
+    return like.new_tensor([2.0**k for k in range(num_frequencies)])
 
 
 class _NativeEncoding(torch.autograd.Function):
@@ -71,7 +76,7 @@ class _NativeEncoding(torch.autograd.Function):
         if num_frequencies:
             sincos = out[:, first:].reshape(-1, num_frequencies, 2, d)
             g = grad_out[:, first:].reshape(-1, num_frequencies, 2, d)
-            freqs = out.new_tensor([2.0**k for k in range(num_frequencies)])[:, None]
+            freqs = _frequencies(out, num_frequencies)[:, None]
             # d sin(a u) = a cos(a u), d cos(a u) = -a sin(a u)
             grad = grad + ((g[:, :, 0] * sincos[:, :, 1] - g[:, :, 1] * sincos[:, :, 0]) * freqs).sum(1)
         return grad, None, None, None

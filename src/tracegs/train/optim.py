@@ -62,9 +62,8 @@ def step_adams(optimizers: list[torch.optim.Optimizer | None]) -> None:
         if ready is None:
             opt.step()
             continue
-        for group, (params, grads, avgs, squares, counts) in ready:
-            groups.append((group, params, grads, avgs, squares, counts))
-            steps += counts
+        groups += ready
+        steps += [count for *_, counts in ready for count in counts]
     if not groups:
         return
     torch._foreach_add_(steps, 1)
@@ -77,9 +76,9 @@ def step_adams(optimizers: list[torch.optim.Optimizer | None]) -> None:
 
 
 def _fused_ready(opt: torch.optim.Optimizer) -> list | None:
-    """Per group of ``opt``: its parameters with a gradient and their state tensors, where ``step_adams``
-    may call the fused kernel itself (a fused, plain Adam whose every such parameter has its state,
-    all on one device in one dtype); else None."""
+    """Per group of ``opt``: (group, its parameters with a gradient, their gradients, exp_avgs,
+    exp_avg_sqs, step counts), where ``step_adams`` may call the fused kernel itself (a fused, plain
+    Adam whose every such parameter has its state, all on one device in one dtype); else None."""
     if type(opt) is not torch.optim.Adam:
         return None
     ready = []
@@ -101,8 +100,8 @@ def _fused_ready(opt: torch.optim.Optimizer) -> list | None:
             return None
         if params:
             ready.append(
-                (group, ([*params], [p.grad for p in params], [s["exp_avg"] for s in states],
-                         [s["exp_avg_sq"] for s in states], [s["step"] for s in states]))
+                (group, params, [p.grad for p in params], [s["exp_avg"] for s in states],
+                 [s["exp_avg_sq"] for s in states], [s["step"] for s in states])
             )  # fmt: skip
     return ready
 
