@@ -127,7 +127,8 @@ def gemms_alone_ms(model, t_prime: float, t: float, weights, blocks: int = 6, st
 
 
 KERNELS = {"fused MLP + native ops": (True, True), "native ops": (False, True), "pytorch": (False, False)}
-"""Rows: the field MLPs' fused op (``models/fused_mlp.py``; float32 only) on or off, and the other
+"""Rows: the field MLPs' fused op (``models/fused_mlp.py``; float32, and bf16 where it has
+``bf16_products``) on or off, and the other
 native ops on or off: the RK2 (``physics/fused.py``), the positional encoding (``models/encoding.py``)
 and f_defo's output applied to the Gaussians (``models/deformation.py``, ``deform_rows``)."""
 
@@ -139,7 +140,7 @@ def use_kernels(name: str) -> None:
 
 
 def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]:
-    """Rows for the kernels of ``KERNELS`` (without the fused MLP in bf16, where it does not apply),
+    """Rows for the kernels of ``KERNELS`` (without the fused MLP in bf16 where it has no bf16 products),
     measured in alternating blocks of ``steps`` steps: each row's time is its fastest block (the others
     ran beside whatever else the host did; an A/B in one process cancels the drift between runs)."""
     torch.set_num_threads(threads)
@@ -149,7 +150,8 @@ def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]
     with FlopCounterMode(display=False) as counter:
         fields_step(model, t_prime, t, weights)
     flops = counter.get_total_flops()
-    names = [name for name in KERNELS if not (model.bf16 and KERNELS[name][0])]
+    no_bf16 = model.bf16 and not fused_mlp.bf16_products()
+    names = [name for name in KERNELS if not (no_bf16 and KERNELS[name][0])]
     for name in names:
         use_kernels(name)
         for _ in range(5):

@@ -185,11 +185,6 @@ def cpu_flags(cpuinfo: str = "/proc/cpuinfo") -> frozenset[str]:
 def cpu_has_fast_bf16(cpuinfo: str = "/proc/cpuinfo") -> bool:
     """True on x86 CPUs with bf16 dot products in hardware: AMX-BF16 tiles (Intel Xeon since Sapphire
     Rapids) or AVX512-BF16 (AMD Zen 4 and later, Intel Cooper Lake). There bf16 autocast makes the
-    fields' matrix products 3x faster; elsewhere bf16 is emulated and slower than fp32."""
+    fields' matrix products faster (AMX: oneDNN's tiles; AVX512-BF16: the fused MLPs' bf16 products,
+    ``models/fused_mlp.py``); elsewhere bf16 is emulated and slower than fp32."""
     return bool(cpu_flags(cpuinfo) & {"amx_bf16", "avx512_bf16"})
-
-
-def cpu_trains_bf16(cpuinfo: str = "/proc/cpuinfo") -> bool:
-    """Whether ``cpu-fast`` trains the fields in bf16 here: on CPUs with AMX-BF16 tiles. With
-    AVX512-BF16 alone (AMD Zen 4) the fused float32 MLPs train the demo faster (docs/DESIGN.md)."""
-    return "amx_bf16" in cpu_flags(cpuinfo)

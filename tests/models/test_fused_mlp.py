@@ -119,15 +119,16 @@ def test_fused_mlp_gradients_match_finite_differences(activation, last_activatio
 
     weights = [param(o, i) for i, o in zip(widths[:-1], widths[1:], strict=True)]
     biases = [param(o) for o in widths[1:]]
-    skip = param(widths[2], widths[0])
     x = param(6, widths[0])
+    for skip_layer in (1, 0):  # (0: the first layer takes x twice)
+        skip = param(widths[skip_layer + 1], widths[0])
 
-    def f(x, skip, *layers):
-        return fused_mlp.fused_mlp(
-            x, list(layers[:3]), list(layers[3:]), activation, last_activation, skip=(1, skip)
-        )
+        def f(x, skip, *layers, skip_layer=skip_layer):
+            return fused_mlp.fused_mlp(
+                x, list(layers[:3]), list(layers[3:]), activation, last_activation, skip=(skip_layer, skip)
+            )
 
-    assert torch.autograd.gradcheck(f, (x, skip, *weights, *biases))
+        assert torch.autograd.gradcheck(f, (x, skip, *weights, *biases))
 
 
 def test_stopped_outputs_train_the_weights_but_not_the_input():
@@ -150,8 +151,9 @@ def test_where_the_fused_path_applies():
     x = torch.randn(10, 3)
     assert fused_mlp.applies(x)
     assert not fused_mlp.applies(x[:1])  # a single point: every part folds into the bias
-    with torch.autocast("cpu", dtype=torch.bfloat16):
-        assert not fused_mlp.applies(x)  # bf16: oneDNN's products
+    with torch.autocast("cpu", dtype=torch.bfloat16):  # bf16: this op's bf16 products, else oneDNN's
+        assert fused_mlp.applies(x) == fused_mlp.bf16_products()
+        assert not fused_mlp.applies(x.double())
     previous, fused_mlp.ENABLED = fused_mlp.ENABLED, False
     try:
         assert not fused_mlp.applies(x)
@@ -187,6 +189,90 @@ def test_fused_mlp_built_for_avx2_matches_its_layers(tmp_path):
     env = {**os.environ, "TRACEGS_MARCH": "x86-64-v3"}  # (a build of its own in the cache, keyed by -march)
     res = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr[-2000:]
+
+
+def _bf16(t: torch.Tensor) -> torch.Tensor:
+    return t.to(torch.bfloat16).to(t.dtype)
+
+
+def _bf16_reference(x, weights, biases, activation, last_activation, skip, grad):
+    """The bf16 products' MLP in float64, with explicit backward: every product's operands rounded to
+    bf16 (the forward's h and W, the input gradients' dz and W), the weights' gradients from the
+    unrounded h and dz. Returns [output, d weights..., d biases..., d skip weight, d x]."""
+
+    def act(z):
+        return torch.relu(z) if activation == "relu" else z * torch.sigmoid(z)
+
+    def act_grad(z):
+        if activation == "relu":
+            return (z > 0).to(z.dtype)
+        s = torch.sigmoid(z)
+        return s * (1 + z * (1 - s))
+
+    skip_layer, skip_weight = skip
+    layers = len(weights)
+    hs, zs = [x], []
+    for i in range(layers):
+        z = _bf16(hs[-1]) @ _bf16(weights[i]).T + biases[i]
+        if i == skip_layer:
+            z = z + _bf16(x) @ _bf16(skip_weight).T
+        zs.append(z)
+        hs.append(act(z) if i < layers - 1 or last_activation else z)
+    dz = grad * act_grad(zs[-1]) if last_activation else grad
+    d_weights, d_biases, d_x = [None] * layers, [None] * layers, torch.zeros_like(x)
+    for i in range(layers - 1, -1, -1):
+        d_weights[i], d_biases[i] = dz.T @ hs[i], dz.sum(0)
+        if i == skip_layer:
+            d_skip = dz.T @ x
+            d_x = d_x + _bf16(dz) @ _bf16(skip_weight)
+        if i == 0:
+            d_x = d_x + _bf16(dz) @ _bf16(weights[0])
+            break
+        dz = (_bf16(dz) @ _bf16(weights[i])) * act_grad(zs[i - 1])
+    return [hs[-1], *d_weights, *d_biases, d_skip, d_x]
+
+
+@pytest.mark.skipif(not fused_mlp.bf16_products(), reason="no bf16 products on this CPU or build")
+@pytest.mark.parametrize(
+    "widths, activation, skip_layer, last_activation",
+    [
+        ([51, 64, 64, 64, 64, 10], "relu", 3, False),
+        ([39, 64, 64, 9], "silu", 0, False),
+        ([7, 9, 18, 5], "silu", 1, True),
+    ],
+    ids=["f_defo", "f_trd", "odd-widths"],
+)
+def test_bf16_products_match_their_float64_emulation(widths, activation, skip_layer, last_activation):
+    """Under bf16 autocast the op's outputs and gradients equal the same MLP in float64 with each
+    product's operands rounded to bf16 (to float rounding: the float sums, and a rare operand that
+    rounds the other way from a float32 rather than a float64 value)."""
+    g = torch.Generator().manual_seed(0)
+
+    def param(*shape):
+        return (0.3 * torch.randn(*shape, generator=g)).requires_grad_()
+
+    weights = [param(o, i) for i, o in zip(widths[:-1], widths[1:], strict=True)]
+    biases = [param(o) for o in widths[1:]]
+    skip_weight = param(widths[skip_layer + 1], widths[0])
+    x = torch.randn(301, widths[0], generator=g).requires_grad_()  # (rows: not a multiple of any block)
+    grad = torch.randn(301, widths[-1], generator=g)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = fused_mlp.fused_mlp(
+            x, weights, biases, activation, last_activation, skip=(skip_layer, skip_weight)
+        )
+    out.backward(grad)
+    ours = [out.detach(), *[p.grad for p in (*weights, *biases, skip_weight, x)]]
+    as64 = [p.detach().double() for p in weights], [p.detach().double() for p in biases]
+    skip = (skip_layer, skip_weight.detach().double())
+    reference = _bf16_reference(x.detach().double(), *as64, activation, last_activation, skip, grad.double())
+    for a, b in zip(ours, reference, strict=True):
+        torch.testing.assert_close(a.double(), b, rtol=0, atol=1e-4 * float(b.abs().max()))
+    # and bf16 products are not float32's: the comparison can fail
+    with torch.no_grad():
+        plain = fused_mlp.fused_mlp(
+            x, weights, biases, activation, last_activation, skip=(skip_layer, skip_weight)
+        )
+    assert float((plain - out.detach()).abs().max()) > 1e-3 * float(plain.abs().max())
 
 
 def test_second_derivatives_are_refused_not_wrong():

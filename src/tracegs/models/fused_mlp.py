@@ -5,6 +5,11 @@ a CPU, float32 or float64 fields, more than one point, the extension built with 
 ``ENABLED = False``, run their PyTorch layers. Both compute the same function: values and gradients
 agree to float rounding (tests/models/test_fused_mlp.py).
 
+Under bf16 autocast the op multiplies in bf16 where it was built for AVX512-BF16 (``bf16_products``:
+the forward's and the input gradients' products from bf16 operands with float sums, the weights'
+gradients in float32, as autocast's layers but for the last), except on CPUs with AMX tiles, where
+autocast's oneDNN products keep the fields.
+
 N: points, E: input channels, O: a layer's outputs.
 """
 
@@ -15,6 +20,7 @@ import functools
 import torch
 
 from ..cpp import EXTENSIONS
+from ..utils import cpu_flags
 from .encoding import fold_single_rows
 
 EXTENSION = EXTENSIONS["tracegs_mlp_cpu"]
@@ -31,13 +37,27 @@ it beats ATen's layers (docs/DESIGN.md, "Fused float32 MLPs"); an SSE or NEON bu
 
 def applies(x: torch.Tensor) -> bool:
     """Whether ``fused_mlp`` serves the encoded inputs ``x`` [N, E]: float32 or float64 on the CPU,
-    outside bf16 autocast (where oneDNN's bf16 products are faster than this float32 kernel), with
-    the extension built for vectors of ``MIN_VECTOR_BYTES``."""
+    with the extension built for vectors of ``MIN_VECTOR_BYTES``; under bf16 autocast where the op has
+    ``bf16_products``."""
     if not ENABLED or x.device.type != "cpu" or x.dim() != 2 or x.shape[0] < 2:
         return False
-    if x.dtype not in (torch.float32, torch.float64) or torch.is_autocast_enabled("cpu"):
+    if x.dtype not in (torch.float32, torch.float64):
+        return False
+    if _autocast_bf16() and (x.dtype != torch.float32 or not bf16_products()):
         return False
     return _vector_bytes() >= MIN_VECTOR_BYTES
+
+
+def _autocast_bf16() -> bool:
+    return torch.is_autocast_enabled("cpu") and torch.get_autocast_dtype("cpu") == torch.bfloat16
+
+
+@functools.cache
+def bf16_products() -> bool:
+    """Whether the op serves bf16 autocast here: built for AVX512-BF16, on a CPU without AMX tiles
+    (there oneDNN's tile products are the measured path; docs/DESIGN.md, "bf16 fields")."""
+    ops = EXTENSION.load()
+    return ops is not None and bool(ops.bf16_products()) and "amx_bf16" not in cpu_flags()
 
 
 @functools.cache
@@ -50,11 +70,11 @@ def _vector_bytes() -> int:
 class _FusedMLP(torch.autograd.Function):
     @staticmethod
     def forward(ctx, x, skip_weight, settings, *layers):
-        skip_layer, activation, last_activation, _ = settings
+        skip_layer, activation, last_activation, _, bf16 = settings
         half = len(layers) // 2
         weights, biases = list(layers[:half]), list(layers[half:])
         saved = EXTENSION.load().mlp_forward(
-            x, weights, biases, skip_weight, skip_layer, activation, last_activation
+            x, weights, biases, skip_weight, skip_layer, activation, last_activation, bf16
         )
         ctx.save_for_backward(skip_weight, *weights, *saved[1:])  # x, z and h, padded
         ctx.settings, ctx.layers = settings, half
@@ -63,7 +83,7 @@ class _FusedMLP(torch.autograd.Function):
     @staticmethod
     @torch.autograd.function.once_differentiable  # (no second derivatives: a clear error, not zeros)
     def backward(ctx, grad_out):
-        skip_layer, activation, last_activation, stop_from = ctx.settings
+        skip_layer, activation, last_activation, stop_from, bf16 = ctx.settings
         skip_weight, *rest = ctx.saved_tensors
         n = ctx.layers
         weights, saved = rest[:n], rest[n:]
@@ -77,6 +97,7 @@ class _FusedMLP(torch.autograd.Function):
             last_activation,
             stop_from,
             ctx.needs_input_grad[0],
+            bf16,
         )
         d_skip = grads[2 * n] if skip_weight is not None and ctx.needs_input_grad[1] else None
         d_x = grads[2 * n + 1] if ctx.needs_input_grad[0] else None
@@ -97,13 +118,15 @@ def fused_mlp(
 
     ``skip = (i, S)``: layer ``i`` also adds ``x S^T`` (a concatenation [x, h] with its weight split);
     ``stop_from``: the last layer's outputs from this one on pass no gradient to its input (they still
-    train its weights). Call where ``applies`` says so."""
+    train its weights). Call where ``applies`` says so; under bf16 autocast the products are bf16's
+    (``bf16_products``)."""
     skip_layer, skip_weight = (-1, None) if skip is None else skip
     settings = (
         skip_layer,
         ACTIVATION_CODES[activation],
         last_activation,
         -1 if stop_from is None else stop_from,
+        _autocast_bf16(),
     )
     return _FusedMLP.apply(x.contiguous(), skip_weight, settings, *weights, *biases)
 

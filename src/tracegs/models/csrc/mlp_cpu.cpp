@@ -38,6 +38,14 @@
 #include <utility>
 #include <vector>
 
+// bf16 products (mlp_forward's and mlp_backward's ``bf16``) where the compiler targets AVX512-BF16
+#if defined(__AVX512F__) && defined(__AVX512BF16__)
+#include <immintrin.h>
+#define BF16_PRODUCTS 1
+#else
+#define BF16_PRODUCTS 0
+#endif
+
 namespace {
 
 // Register blocks: the row-wise products keep RB rows x VB vectors of sums, the weight gradients OB
@@ -153,7 +161,7 @@ struct Pair {
 
 // C = sum over pairs of A B (+ init, a row of M) for rows [r0, r0 + R) and vectors [v0, v0 + NV),
 // each result vector handed to epi(row, column, value).
-template <typename T, int R, int NV, typename Epi>
+template <int R, int NV, typename T, typename Epi>
 inline void block(const std::vector<Pair<T>>& pairs, const T* init, int64_t r0, int64_t v0, Epi& epi) {
     using V = typename VT<T>::v;
     constexpr int64_t L = LANES<T>;
@@ -186,31 +194,99 @@ inline void block(const std::vector<Pair<T>>& pairs, const T* init, int64_t r0, 
     }
 }
 
-template <typename T, int R, typename Epi>
-inline void block_row(const std::vector<Pair<T>>& pairs, const T* init, int64_t r0, int64_t vectors, Epi& epi) {
+#if BF16_PRODUCTS
+// The same product with bf16 operands and float sums (AVX512-BF16's dot product of pairs): A [N, K] as
+// bf16 pairs along K (lda: pairs per row), B [K / 2, M, 2] as pairs of its rows (ldb: M), k pairs.
+struct PairBF16 {
+    const uint32_t* a;
+    int64_t lda;
+    const uint32_t* b;
+    int64_t ldb;
+    int64_t k;
+};
+
+template <int R, int NV, typename Epi>
+inline void block(const std::vector<PairBF16>& pairs, const float* init, int64_t r0, int64_t v0, Epi& epi) {
+    __m512 acc[R][NV];
+    for (int j = 0; j < NV; ++j) {
+        const __m512 start = init ? _mm512_loadu_ps(init + (v0 + j) * 16) : _mm512_setzero_ps();
+        for (int r = 0; r < R; ++r) {
+            acc[r][j] = start;
+        }
+    }
+    for (const PairBF16& p : pairs) {
+        const uint32_t* arow = p.a + r0 * p.lda;
+        for (int64_t k = 0; k < p.k; ++k) {
+            __m512bh bv[NV];
+            for (int j = 0; j < NV; ++j) {
+                bv[j] = (__m512bh)_mm512_loadu_si512(p.b + k * p.ldb + (v0 + j) * 16);
+            }
+            for (int r = 0; r < R; ++r) {
+                const __m512bh a = (__m512bh)_mm512_set1_epi32(int(arow[r * p.lda + k]));
+                for (int j = 0; j < NV; ++j) {
+                    acc[r][j] = _mm512_dpbf16_ps(acc[r][j], a, bv[j]);
+                }
+            }
+        }
+    }
+    for (int r = 0; r < R; ++r) {
+        for (int j = 0; j < NV; ++j) {
+            VT<float>::v v;
+            std::memcpy(&v, &acc[r][j], sizeof(v));
+            epi(r0 + r, (v0 + j) * 16, v);
+        }
+    }
+}
+
+inline void store_bf16(uint16_t* p, VT<float>::v v) {  // rounded to nearest even
+    __m512 f;
+    std::memcpy(&f, &v, sizeof(f));
+    const __m256bh b = _mm512_cvtneps_pbh(f);
+    std::memcpy(p, &b, sizeof(b));
+}
+#else
+inline void store_bf16(uint16_t*, VT<float>::v) {}  // (never called: no bf16 products in this build)
+#endif
+
+template <typename P>
+struct Sum;  // the sums' (and init's) type of a product's operands
+template <typename T>
+struct Sum<Pair<T>> {
+    using type = T;
+};
+#if BF16_PRODUCTS
+template <>
+struct Sum<PairBF16> {
+    using type = float;
+};
+#endif
+
+template <int R, typename P, typename Epi>
+inline void block_row(const std::vector<P>& pairs, const typename Sum<P>::type* init, int64_t r0, int64_t vectors,
+                      Epi& epi) {
     int64_t v0 = 0;
     for (; v0 + VB <= vectors; v0 += VB) {
-        block<T, R, VB>(pairs, init, r0, v0, epi);
+        block<R, VB>(pairs, init, r0, v0, epi);
     }
     for (; v0 < vectors; ++v0) {
-        block<T, R, 1>(pairs, init, r0, v0, epi);
+        block<R, 1>(pairs, init, r0, v0, epi);
     }
 }
 
 // The row-wise product over all n rows, m (padded) columns, in parallel tiles of rows.
-template <typename T, typename Epi>
-void product(const std::vector<Pair<T>>& pairs, const T* init, int64_t n, int64_t m, Epi epi) {
-    const int64_t vectors = m / LANES<T>;
+template <typename P, typename Epi>
+void product(const std::vector<P>& pairs, const typename Sum<P>::type* init, int64_t n, int64_t m, Epi epi) {
+    const int64_t vectors = m / LANES<typename Sum<P>::type>;
     const int64_t tiles = (n + TILE_ROWS - 1) / TILE_ROWS;
     at::parallel_for(0, tiles, 1, [&](int64_t t0, int64_t t1) {
         for (int64_t t = t0; t < t1; ++t) {
             const int64_t end = std::min(n, (t + 1) * TILE_ROWS);
             int64_t r = t * TILE_ROWS;
             for (; r + RB <= end; r += RB) {
-                block_row<T, RB>(pairs, init, r, vectors, epi);
+                block_row<RB>(pairs, init, r, vectors, epi);
             }
             for (; r < end; ++r) {
-                block_row<T, 1>(pairs, init, r, vectors, epi);
+                block_row<1>(pairs, init, r, vectors, epi);
             }
         }
     });
@@ -327,17 +403,32 @@ inline bool activates(int64_t i, int64_t layers, bool last_activation) {
     return i < layers - 1 || last_activation;
 }
 
+// A result vector also stored as bf16 (the next bf16 product's operand) where ``copy`` is not null.
+template <typename T>
+inline void store_copy(uint16_t* copy, int64_t at, typename VT<T>::v v) {
+    if constexpr (std::is_same_v<T, float>) {
+        if (copy != nullptr) {
+            store_bf16(copy + at, v);
+        }
+    }
+}
+
 template <typename T, int64_t ACT>
 struct ForwardStore {
     T* z;
     T* h;
     int64_t ld;
+    uint16_t* h_bf16;  // h as bf16, or null
     void operator()(int64_t r, int64_t c, typename VT<T>::v v) {
         if constexpr (ACT == SILU) {
+            const typename VT<T>::v a = v * sigmoid<T>(v);
             storev(z + r * ld + c, v);
-            storev(h + r * ld + c, v * sigmoid<T>(v));
+            storev(h + r * ld + c, a);
+            store_copy<T>(h_bf16, r * ld + c, a);
         } else if constexpr (ACT == RELU) {
-            storev(h + r * ld + c, v > T(0) ? v : T(0));
+            const typename VT<T>::v a = v > T(0) ? v : T(0);
+            storev(h + r * ld + c, a);
+            store_copy<T>(h_bf16, r * ld + c, a);
         } else {
             storev(z + r * ld + c, v);
         }
@@ -349,10 +440,80 @@ struct BackwardStore {  // dz_{i-1} = (dz_i W_i) act'_{i-1}
     T* out;
     const T* saved;
     int64_t ld;
+    uint16_t* out_bf16;  // dz_{i-1} as bf16, or null
     void operator()(int64_t r, int64_t c, typename VT<T>::v v) {
-        storev(out + r * ld + c, derivative<T, ACT>(v, loadv(saved + r * ld + c)));
+        const typename VT<T>::v d = derivative<T, ACT>(v, loadv(saved + r * ld + c));
+        storev(out + r * ld + c, d);
+        store_copy<T>(out_bf16, r * ld + c, d);
     }
 };
+
+// A padded float matrix's bf16 copy (the operand A of bf16 products), all its elements.
+at::Tensor bf16_copy(const at::Tensor& f) {
+    at::Tensor out = at::empty(f.sizes(), f.options().dtype(at::kBFloat16));
+    const float* src = f.data_ptr<float>();
+    uint16_t* dst = reinterpret_cast<uint16_t*>(out.data_ptr<at::BFloat16>());
+    for (int64_t e = 0; e < f.numel(); e += LANES<float>) {
+        store_copy<float>(dst, e, loadv(src + e));
+    }
+    return out;
+}
+
+// The operand B of a bf16 product: ``pack``'s padded [K, M] matrix as pairs of its rows [K / 2, M, 2],
+// each rounded to the nearest bf16.
+at::Tensor pack_pairs(const at::Tensor& w, bool transpose, int64_t keep_rows = -1) {
+    const at::Tensor f = pack<float>(w, transpose, keep_rows);
+    const int64_t kp = f.size(0), mp = f.size(1);
+    at::Tensor out = at::empty({kp / 2, mp, 2}, f.options().dtype(at::kBFloat16));
+    const float* src = f.data_ptr<float>();
+    at::BFloat16* dst = out.data_ptr<at::BFloat16>();
+    for (int64_t k = 0; k < kp / 2; ++k) {
+        for (int64_t c = 0; c < mp; ++c) {
+            dst[(k * mp + c) * 2] = at::BFloat16(src[2 * k * mp + c]);
+            dst[(k * mp + c) * 2 + 1] = at::BFloat16(src[(2 * k + 1) * mp + c]);
+        }
+    }
+    return out;
+}
+
+inline const uint32_t* pairs_of(const at::Tensor& t) {
+    return reinterpret_cast<const uint32_t*>(t.data_ptr<at::BFloat16>());
+}
+
+inline uint16_t* bf16_data(at::Tensor& t) {
+    return t.defined() ? reinterpret_cast<uint16_t*>(t.data_ptr<at::BFloat16>()) : nullptr;
+}
+
+// out = a b (+ init) by rows, each result vector to epi: float products, or bf16 ones where ``a_bf16``
+// (a's bf16 copy) is defined, b then packed as pairs (``pack_pairs``) from ``w`` as ``pack`` would.
+template <typename T, typename Epi>
+void rows_product(const at::Tensor& a, const at::Tensor& a_bf16, const at::Tensor& w, bool transpose, int64_t keep,
+                  const T* init, int64_t n, Epi epi, const at::Tensor& a2 = {}, const at::Tensor& a2_bf16 = {},
+                  const at::Tensor& w2 = {}) {
+#if BF16_PRODUCTS
+    if constexpr (std::is_same_v<T, float>) {
+        if (a_bf16.defined()) {
+            const at::Tensor b = pack_pairs(w, transpose, keep);
+            std::vector<PairBF16> pairs{{pairs_of(a_bf16), a.size(1) / 2, pairs_of(b), b.size(1), b.size(0)}};
+            at::Tensor b2;
+            if (w2.defined()) {
+                b2 = pack_pairs(w2, transpose);
+                pairs.push_back({pairs_of(a2_bf16), a2.size(1) / 2, pairs_of(b2), b2.size(1), b2.size(0)});
+            }
+            product(pairs, init, n, b.size(1), epi);
+            return;
+        }
+    }
+#endif
+    const at::Tensor b = pack<T>(w, transpose, keep);
+    std::vector<Pair<T>> pairs{{a.data_ptr<T>(), a.size(1), b.data_ptr<T>(), b.size(1), b.size(0)}};
+    at::Tensor b2;
+    if (w2.defined()) {
+        b2 = pack<T>(w2, transpose);
+        pairs.push_back({a2.data_ptr<T>(), a2.size(1), b2.data_ptr<T>(), b2.size(1), b2.size(0)});
+    }
+    product(pairs, init, n, b.size(1), epi);
+}
 
 template <typename T, typename Fn>
 void with_activation(int64_t act, Fn fn) {
@@ -374,9 +535,12 @@ std::vector<at::Tensor> mlp_forward(
     const c10::optional<at::Tensor>& skip_weight,
     int64_t skip_layer,
     int64_t activation,
-    bool last_activation) {
+    bool last_activation,
+    bool bf16) {
     const int64_t layers = int64_t(weights.size());
     TORCH_CHECK(layers > 0 && int64_t(biases.size()) == layers, "mlp_forward: one bias per weight");
+    TORCH_CHECK(!bf16 || (BF16_PRODUCTS && x.scalar_type() == at::kFloat),
+                "mlp_forward: bf16 products need float32 inputs and an AVX512-BF16 build");
     TORCH_CHECK(skip_layer < 0 || skip_weight.has_value(), "mlp_forward: the skip layer needs its weight");
     TORCH_CHECK(activation == RELU || activation == SILU, "mlp_forward: unknown activation");
     TORCH_CHECK(x.dim() == 2 && (x.scalar_type() == at::kFloat || x.scalar_type() == at::kDouble),
@@ -388,34 +552,35 @@ std::vector<at::Tensor> mlp_forward(
         const at::Tensor input = pack<scalar_t>(x, false);  // [N padded to PAD rows, E padded]
         const int64_t rows = input.size(0);
         saved.push_back(input);
+        const at::Tensor input_bf16 = bf16 ? bf16_copy(input) : at::Tensor();
         h = input;
+        at::Tensor h_bf16 = input_bf16;
         for (int64_t i = 0; i < layers; ++i) {
             TORCH_CHECK(weights[i].size(1) == (i == 0 ? x.size(1) : weights[i - 1].size(0)),
                         "mlp_forward: layer ", i, " does not take the previous layer's width");
-            const at::Tensor wt = pack<scalar_t>(weights[i], true);  // [K padded, O padded]
             const at::Tensor b = pad_vector<scalar_t>(biases[i]);
-            std::vector<Pair<scalar_t>> pairs{{h.data_ptr<scalar_t>(), h.size(1), wt.data_ptr<scalar_t>(), wt.size(1), wt.size(0)}};
-            at::Tensor st;
-            if (i == skip_layer) {
-                st = pack<scalar_t>(*skip_weight, true);
-                pairs.push_back({input.data_ptr<scalar_t>(), input.size(1), st.data_ptr<scalar_t>(), st.size(1), st.size(0)});
-            }
-            const int64_t m = wt.size(1);
+            const int64_t m = padded(weights[i].size(0));
             const int64_t act = activates(i, layers, last_activation) ? activation : NONE;
             at::Tensor z = at::empty({rows, m}, input.options());
             at::Tensor out = act == SILU ? at::empty_like(z) : z;
+            at::Tensor out_bf16 = bf16 && i < layers - 1 ? at::empty({rows, m}, z.options().dtype(at::kBFloat16)) : at::Tensor();
             // the padding rows stay zero
             std::fill(z.data_ptr<scalar_t>() + n * m, z.data_ptr<scalar_t>() + rows * m, scalar_t(0));
             if (act == SILU) {  // (else out is z)
                 std::fill(out.data_ptr<scalar_t>() + n * m, out.data_ptr<scalar_t>() + rows * m, scalar_t(0));
             }
+            const bool skips = i == skip_layer;  // (layer i also takes x S^T)
             with_activation<scalar_t>(act, [&](auto a) {
-                product<scalar_t>(pairs, b.data_ptr<scalar_t>(), n, m,
-                                  ForwardStore<scalar_t, decltype(a)::value>{z.data_ptr<scalar_t>(), out.data_ptr<scalar_t>(), m});
+                rows_product<scalar_t>(h, h_bf16, weights[i], true, -1, b.data_ptr<scalar_t>(), n,
+                                       ForwardStore<scalar_t, decltype(a)::value>{z.data_ptr<scalar_t>(), out.data_ptr<scalar_t>(), m,
+                                                                                  bf16_data(out_bf16)},
+                                       skips ? input : at::Tensor(), skips ? input_bf16 : at::Tensor(),
+                                       skips ? *skip_weight : at::Tensor());
             });
             saved.push_back(z);
             saved.push_back(out);
             h = out;
+            h_bf16 = out_bf16;
         }
     });
     saved[0] = h.narrow(0, 0, n).narrow(1, 0, weights.back().size(0));
@@ -432,10 +597,13 @@ std::vector<at::Tensor> mlp_backward(
     int64_t activation,
     bool last_activation,
     int64_t stop_from,
-    bool wants_x) {
+    bool wants_x,
+    bool bf16) {
     const int64_t layers = int64_t(weights.size());
     TORCH_CHECK(int64_t(saved.size()) == 2 + 2 * layers, "mlp_backward: saved tensors do not match");
     const at::Tensor& input = saved[1];
+    TORCH_CHECK(!bf16 || (BF16_PRODUCTS && input.scalar_type() == at::kFloat),
+                "mlp_backward: bf16 products need float32 inputs and an AVX512-BF16 build");
     const auto type = input.scalar_type();
     const int64_t n = grad_out.size(0), rows = input.size(0);
     std::vector<at::Tensor> grads(2 * layers + 2, at::empty({0}, input.options()));
@@ -465,6 +633,7 @@ std::vector<at::Tensor> mlp_backward(
                 }
             });
         }
+        at::Tensor dz_bf16 = bf16 ? bf16_copy(dz) : at::Tensor();  // (the input gradients' operand)
         for (int64_t i = last; i >= 0; --i) {
             const at::Tensor& in = i == 0 ? input : saved[3 + 2 * (i - 1)];  // h_{i-1}, padded
             const int64_t m = dz.size(1), k = in.size(1);
@@ -483,33 +652,36 @@ std::vector<at::Tensor> mlp_backward(
             }
             // the input gradients read the rows before stop_from only
             const int64_t keep = i == last && stop_from >= 0 ? stop_from : -1;
-            const scalar_t* dzp = dz.data_ptr<scalar_t>();
-            if (wants_x && (i == 0 || i == skip_layer)) {
-                const at::Tensor w = pack<scalar_t>(i == 0 ? weights[0] : *skip_weight, false, keep);
+            // d x += dz_i W_i (the first layer) and dz_i S (the skip layer; both where that is the first)
+            for (int64_t part = 0; wants_x && part < 2; ++part) {
+                if (part == 0 ? i != 0 : i != skip_layer) {
+                    continue;
+                }
                 if (!dx.defined()) {
                     dx = at::zeros({rows, input.size(1)}, input.options());
                 }
                 scalar_t* dxp = dx.data_ptr<scalar_t>();
                 const int64_t ld = dx.size(1);
-                std::vector<Pair<scalar_t>> pairs{{dzp, m, w.data_ptr<scalar_t>(), w.size(1), w.size(0)}};
-                product<scalar_t>(pairs, nullptr, n, ld, [&](int64_t r, int64_t c, typename VT<scalar_t>::v v) {
-                    storev(dxp + r * ld + c, loadv(dxp + r * ld + c) + v);
-                });
+                rows_product<scalar_t>(dz, dz_bf16, part == 0 ? weights[0] : *skip_weight, false, keep, nullptr, n,
+                                       [&](int64_t r, int64_t c, typename VT<scalar_t>::v v) {
+                                           storev(dxp + r * ld + c, loadv(dxp + r * ld + c) + v);
+                                       });
             }
             if (i == 0) {
                 break;
             }
-            // dz_{i-1} = (dz_i W_i) act'(z_{i-1})
-            const at::Tensor w = pack<scalar_t>(weights[i], false, keep);  // [O padded, K padded]
+            // dz_{i-1} = (dz_i W_i) act'(z_{i-1}), W_i as [O padded, K padded]
             at::Tensor next = at::empty({rows, k}, input.options());  // (rows < n: all written below)
             std::fill(next.data_ptr<scalar_t>() + n * k, next.data_ptr<scalar_t>() + rows * k, scalar_t(0));
+            at::Tensor next_bf16 = bf16 ? at::empty({rows, k}, dz_bf16.options()) : at::Tensor();
             const at::Tensor& s = saved[activation == SILU ? 2 + 2 * (i - 1) : 3 + 2 * (i - 1)];
-            std::vector<Pair<scalar_t>> pairs{{dzp, m, w.data_ptr<scalar_t>(), w.size(1), w.size(0)}};
             with_activation<scalar_t>(activation, [&](auto a) {
-                product<scalar_t>(pairs, nullptr, n, k,
-                                  BackwardStore<scalar_t, decltype(a)::value>{next.data_ptr<scalar_t>(), s.data_ptr<scalar_t>(), k});
+                rows_product<scalar_t>(dz, dz_bf16, weights[i], false, keep, nullptr, n,
+                                       BackwardStore<scalar_t, decltype(a)::value>{next.data_ptr<scalar_t>(), s.data_ptr<scalar_t>(), k,
+                                                                                   bf16_data(next_bf16)});
             });
             dz = next;
+            dz_bf16 = next_bf16;
         }
     });
     if (wants_x) {
@@ -703,10 +875,14 @@ std::vector<at::Tensor> deform_backward(const at::Tensor& gq0_in, const at::Tens
 // The vector width the kernels were built for, in bytes (64: AVX-512, 32: AVX2, 16: SSE or NEON).
 int64_t vector_bytes() { return VBYTES; }
 
+// Whether mlp_forward and mlp_backward take ``bf16`` (built for AVX512-BF16).
+bool bf16_products() { return BF16_PRODUCTS; }
+
 }  // namespace
 
 TORCH_LIBRARY(tracegs_mlp_cpu, m) {
     m.def("vector_bytes", &vector_bytes);
+    m.def("bf16_products", &bf16_products);
     m.def("mlp_forward", &mlp_forward);
     m.def("mlp_backward", &mlp_backward);
     m.def("positional_encoding", &positional_encoding);
