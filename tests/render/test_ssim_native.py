@@ -50,3 +50,18 @@ def test_identical_images_have_ssim_one_and_other_inputs_fall_back():
     double = training_ssim(image.detach().double().requires_grad_(), target.double())
     assert double.dtype == torch.float64  # not the float32 kernel: image_metrics.ssim
     assert training_ssim(image, target, native=False).item() == pytest.approx(ssim(image, target).item())
+
+
+def test_native_ssim_is_the_same_on_any_thread_count():
+    image, target = _pair(64, 48)
+    previous = torch.get_num_threads()
+    results = []
+    try:
+        for threads in (1, 2, 3):
+            torch.set_num_threads(threads)
+            value = training_ssim(image, target)
+            results.append((value.detach(), torch.autograd.grad(value, image)[0]))
+    finally:
+        torch.set_num_threads(previous)
+    for value, grad in results[1:]:
+        assert torch.equal(value, results[0][0]) and torch.equal(grad, results[0][1])

@@ -88,9 +88,9 @@ class TrainConfig:
     sh_degree_interval: int = 1000
     """Raise the active SH degree by one every this many steps."""
     bf16: bool = False
-    """Run the fields under bfloat16 autocast on CPU (helps on CPUs with AMX; ``cpu-fast`` sets it there). Training
-    follows it; rendering and evaluation use it only on such a CPU (elsewhere fp32 is faster and exact).
-    Ignored on CUDA."""
+    """Run the fields under bfloat16 autocast on CPU (helps on CPUs with AMX or AVX512-BF16; ``cpu-fast`` sets
+    it there). Training follows it; rendering and evaluation use it only on such a CPU (elsewhere fp32 is
+    faster and exact). Ignored on CUDA."""
     random_background: bool = False
     """Composite RGBA training images on a random colour each step (discourages floaters that
     imitate the background); images without alpha are unaffected."""

@@ -32,7 +32,7 @@ ACTIVATION_CODES = {"relu": 0, "silu": 1}
 
 MIN_VECTOR_BYTES = 32
 """The fields take the op where it was built with vectors at least this wide: AVX-512 or AVX2, where
-it beats ATen's layers (docs/DESIGN.md, "Fused float32 MLPs"); an SSE or NEON build is not measured."""
+it beats ATen's layers (docs/DESIGN.md, "Fused MLPs"); an SSE or NEON build is not measured."""
 
 
 def applies(x: torch.Tensor) -> bool:

@@ -115,7 +115,7 @@ class TraceModel(nn.Module):
             self.deformation.fit_bounds(self.to_field_frame(self.gaussians["means"].detach()))
 
     def autocast(self):
-        """bf16 autocast for the fields on CPU when configured (AMX or AVX512-BF16: ~3x faster products)."""
+        """bf16 autocast for the fields on CPU when configured (AMX or AVX512-BF16: faster products)."""
         if self.bf16 and self.aabb.device.type == "cpu":
             return torch.autocast("cpu", dtype=torch.bfloat16)
         return contextlib.nullcontext()

@@ -1,14 +1,16 @@
 // The fields' small float32 MLPs (f_defo, f_trd: 4 x 64 at the cpu-fast sizes) as one op forward
 // and one op backward. At ~3500 points x 64 channels a layer's product is a small call for a BLAS
 // (~1.5x its FLOP floor) and PyTorch then makes extra passes over the activations for the bias, the
-// activation and, in the backward, its derivative and the bias' sum (docs/DESIGN.md, "Fused float32
-// MLPs"; the fields take this op where it is built with AVX2 or AVX-512, models/fused_mlp.py).
+// activation and, in the backward, its derivative and the bias' sum (docs/DESIGN.md, "Fused MLPs";
+// the fields take this op where it is built with AVX2 or AVX-512, models/fused_mlp.py).
 // Here every product is a register-blocked loop over rows (GCC vector extensions: AVX-512, AVX2 or
 // whatever the CPU has) whose result is finished in registers: the forward adds the bias and applies
 // the activation before it stores z and h; the backward's input-gradient product applies the
 // previous layer's activation derivative before it stores; the weight-gradient product sums the bias
 // gradient on the way. Values and gradients agree with the PyTorch layers to float rounding
-// (tests/models/test_fused_mlp.py).
+// (tests/models/test_fused_mlp.py). With ``bf16`` (a build for AVX512-BF16) the forward's and the
+// input gradients' products take bf16 operands (rounded to nearest even) with float sums; the
+// weights' gradients stay float.
 // The file also holds the fields' other per-step ops that were many small ATen ops: the positional
 // encoding and f_defo's output applied to the Gaussians (at the end; tests/models/test_native_field_ops.py).
 //

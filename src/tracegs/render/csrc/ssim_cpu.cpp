@@ -8,7 +8,10 @@
 // S = A1 A2 / (B1 B2), A1 = 2 m1 my + C1, A2 = 2 (m12 - m1 my) + C2, B1 = m1^2 + my^2 + C1,
 // B2 = m2 - m1^2 + myy - my^2 + C2; dS/dx(q) = sum_p g(p - q) [dS/dm1 + 2 x(q) dS/dm2 + y(q) dS/dm12](p),
 // i.e. the three partial maps filtered by the transposed ("full") window. The forward keeps them.
+// The filterings run as parallel tasks (15 forward: 3 channels x 5 moments; 9 backward); each
+// channel's mean is summed in a fixed order, so the result does not depend on the thread count.
 
+#include <ATen/Parallel.h>
 #include <ATen/core/Tensor.h>
 #include <ATen/ops/empty.h>
 #include <ATen/ops/empty_like.h>
@@ -102,36 +105,48 @@ std::vector<at::Tensor> ssim_forward(at::Tensor img, at::Tensor ref) {
     const float* x_hwc = img.data_ptr<float>();
     const float* y_hwc = ref.data_ptr<float>();
     float* p = partials.data_ptr<float>();
-    double total = 0.0;
-    std::vector<float> x(n), y(n), prod(n), tmp(h * wo);
-    std::vector<float> m1(m), my(m), m2(m), myy(m), m12(m);
-    for (int c = 0; c < 3; ++c) {
-        plane(x_hwc, c, n, x.data());
-        plane(y_hwc, c, n, y.data());
-        filter_valid(x.data(), tmp.data(), m1.data(), h, w, g.data());
-        filter_valid(y.data(), tmp.data(), my.data(), h, w, g.data());
-        for (int i = 0; i < n; ++i) prod[i] = x[i] * x[i];
-        filter_valid(prod.data(), tmp.data(), m2.data(), h, w, g.data());
-        for (int i = 0; i < n; ++i) prod[i] = y[i] * y[i];
-        filter_valid(prod.data(), tmp.data(), myy.data(), h, w, g.data());
-        for (int i = 0; i < n; ++i) prod[i] = x[i] * y[i];
-        filter_valid(prod.data(), tmp.data(), m12.data(), h, w, g.data());
-        float* d1 = p + (3 * c + 0) * m;
-        float* d2 = p + (3 * c + 1) * m;
-        float* d12 = p + (3 * c + 2) * m;
-        double sum = 0.0;
-        for (int i = 0; i < m; ++i) {
-            const float mx = m1[i], mu = my[i];
-            const float a1 = 2.0f * mx * mu + kC1, a2 = 2.0f * (m12[i] - mx * mu) + kC2;
-            const float b1 = mx * mx + mu * mu + kC1, b2 = (m2[i] - mx * mx) + (myy[i] - mu * mu) + kC2;
-            const float s = (a1 * a2) / (b1 * b2);
-            sum += s;
-            d1[i] = s * (2.0f * mu / a1 - 2.0f * mu / a2 - 2.0f * mx / b1 + 2.0f * mx / b2);
-            d2[i] = -s / b2;
-            d12[i] = s * 2.0f / a2;
+    // the moments [channel][m1, my, m2, myy, m12][Ho * Wo]
+    std::vector<float> moments(3 * 5 * m);
+    at::parallel_for(0, 15, 1, [&](int64_t j0, int64_t j1) {
+        std::vector<float> x(n), y(n), tmp(h * wo);
+        for (int64_t j = j0; j < j1; ++j) {
+            const int c = int(j / 5), moment = int(j % 5);
+            plane(moment == 1 || moment == 3 ? y_hwc : x_hwc, c, n, x.data());
+            if (moment == 2 || moment == 3) {
+                for (int i = 0; i < n; ++i) x[i] = x[i] * x[i];
+            } else if (moment == 4) {
+                plane(y_hwc, c, n, y.data());
+                for (int i = 0; i < n; ++i) x[i] = x[i] * y[i];
+            }
+            filter_valid(x.data(), tmp.data(), moments.data() + j * m, h, w, g.data());
         }
-        total += sum / m;
-    }
+    });
+    double sums[3];
+    at::parallel_for(0, 3, 1, [&](int64_t c0, int64_t c1) {
+        for (int64_t c = c0; c < c1; ++c) {
+            const float* m1 = moments.data() + (5 * c + 0) * m;
+            const float* my = moments.data() + (5 * c + 1) * m;
+            const float* m2 = moments.data() + (5 * c + 2) * m;
+            const float* myy = moments.data() + (5 * c + 3) * m;
+            const float* m12 = moments.data() + (5 * c + 4) * m;
+            float* d1 = p + (3 * c + 0) * m;
+            float* d2 = p + (3 * c + 1) * m;
+            float* d12 = p + (3 * c + 2) * m;
+            double sum = 0.0;
+            for (int i = 0; i < m; ++i) {
+                const float mx = m1[i], mu = my[i];
+                const float a1 = 2.0f * mx * mu + kC1, a2 = 2.0f * (m12[i] - mx * mu) + kC2;
+                const float b1 = mx * mx + mu * mu + kC1, b2 = (m2[i] - mx * mx) + (myy[i] - mu * mu) + kC2;
+                const float s = (a1 * a2) / (b1 * b2);
+                sum += s;
+                d1[i] = s * (2.0f * mu / a1 - 2.0f * mu / a2 - 2.0f * mx / b1 + 2.0f * mx / b2);
+                d2[i] = -s / b2;
+                d12[i] = s * 2.0f / a2;
+            }
+            sums[c] = sum / m;
+        }
+    });
+    const double total = sums[0] + sums[1] + sums[2];
     return {at::full({}, static_cast<float>(total / 3.0), img.options()), partials};
 }
 
@@ -149,14 +164,21 @@ at::Tensor ssim_backward(at::Tensor img, at::Tensor ref, at::Tensor partials, do
     const float* p = partials.contiguous().data_ptr<float>();
     float* o = out.data_ptr<float>();
     const float scale = static_cast<float>(grad / (3.0 * m));  // the mean over channels and pixels
-    std::vector<float> tmp(h * wo), f1(n), f2(n), f12(n);
-    for (int c = 0; c < 3; ++c) {
-        filter_full(p + (3 * c + 0) * m, tmp.data(), f1.data(), h, w, g.data());
-        filter_full(p + (3 * c + 1) * m, tmp.data(), f2.data(), h, w, g.data());
-        filter_full(p + (3 * c + 2) * m, tmp.data(), f12.data(), h, w, g.data());
-        for (int i = 0; i < n; ++i)
-            o[3 * i + c] = scale * (f1[i] + 2.0f * x_hwc[3 * i + c] * f2[i] + y_hwc[3 * i + c] * f12[i]);
-    }
+    std::vector<float> filtered(9 * n);  // [channel][the three partial maps][H * W]
+    at::parallel_for(0, 9, 1, [&](int64_t j0, int64_t j1) {
+        std::vector<float> tmp(h * wo);
+        for (int64_t j = j0; j < j1; ++j) {
+            filter_full(p + j * m, tmp.data(), filtered.data() + j * n, h, w, g.data());
+        }
+    });
+    at::parallel_for(0, n, 2048, [&](int64_t i0, int64_t i1) {
+        for (int64_t i = i0; i < i1; ++i) {
+            for (int c = 0; c < 3; ++c) {
+                const float* f = filtered.data() + 3 * c * n;
+                o[3 * i + c] = scale * (f[i] + 2.0f * x_hwc[3 * i + c] * f[n + i] + y_hwc[3 * i + c] * f[2 * n + i]);
+            }
+        }
+    });
     return out;
 }
 
