@@ -197,9 +197,8 @@ def _bf16(t: torch.Tensor) -> torch.Tensor:
 
 def _bf16_reference(x, weights, biases, activation, last_activation, skip, grad):
     """The bf16 products' MLP in float64, with explicit backward: every product's operands rounded to
-    bf16 (the forward's h and W, the input gradients' dz and W, the weights' gradients' dz and h), the
-    biases' gradients from the unrounded dz. Returns [output, d weights..., d biases..., d skip weight,
-    d x]."""
+    bf16 (the forward's h and W, the input gradients' dz and W), the weights' gradients from the
+    unrounded h and dz. Returns [output, d weights..., d biases..., d skip weight, d x]."""
 
     def act(z):
         return torch.relu(z) if activation == "relu" else z * torch.sigmoid(z)
@@ -222,9 +221,9 @@ def _bf16_reference(x, weights, biases, activation, last_activation, skip, grad)
     dz = grad * act_grad(zs[-1]) if last_activation else grad
     d_weights, d_biases, d_x = [None] * layers, [None] * layers, torch.zeros_like(x)
     for i in range(layers - 1, -1, -1):
-        d_weights[i], d_biases[i] = _bf16(dz).T @ _bf16(hs[i]), dz.sum(0)
+        d_weights[i], d_biases[i] = dz.T @ hs[i], dz.sum(0)
         if i == skip_layer:
-            d_skip = _bf16(dz).T @ _bf16(x)
+            d_skip = dz.T @ x
             d_x = d_x + _bf16(dz) @ _bf16(skip_weight)
         if i == 0:
             d_x = d_x + _bf16(dz) @ _bf16(weights[0])

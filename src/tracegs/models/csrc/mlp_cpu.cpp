@@ -8,10 +8,9 @@
 // the activation before it stores z and h; the backward's input-gradient product applies the
 // previous layer's activation derivative before it stores; the weight-gradient product sums the bias
 // gradient on the way. Values and gradients agree with the PyTorch layers to float rounding
-// (tests/models/test_fused_mlp.py). With ``bf16`` (a build for AVX512-BF16) every product takes bf16
-// operands (rounded to nearest even) with float sums: the forward's and the input gradients' from
-// bf16 copies by rows, the weights' gradients from bf16 pairs of rows (both written by the epilogue
-// that finishes h or dz); the biases' gradients sum the float dz.
+// (tests/models/test_fused_mlp.py). With ``bf16`` (a build for AVX512-BF16) the forward's and the
+// input gradients' products take bf16 operands (rounded to nearest even) with float sums; the
+// weights' gradients stay float.
 // The file also holds the fields' other per-step ops that were many small ATen ops: the positional
 // encoding and f_defo's output applied to the Gaussians (at the end; tests/models/test_native_field_ops.py).
 //
@@ -64,7 +63,7 @@ constexpr int VBYTES = 16;  // SSE, NEON
 constexpr int RB = 6, VB = 2, OB = 4, GB = 2;
 #endif
 constexpr int64_t PAD = 16;           // widths padded to a multiple of this (of every vector's lanes)
-constexpr int64_t TILE_ROWS = 30;     // rows per parallel task of the row-wise products (even, of RB)
+constexpr int64_t TILE_ROWS = 32;     // rows per parallel task of the row-wise products
 constexpr int64_t CHUNK_ROWS = 256;   // rows per partial sum of the weight gradients
 
 template <typename T>
@@ -197,62 +196,7 @@ inline void block(const std::vector<Pair<T>>& pairs, const T* init, int64_t r0, 
     }
 }
 
-// Whether an epilogue also writes its results as bf16 pairs of rows (members ``pairs`` and ``ld``).
-template <typename E, typename = void>
-struct HasPairs : std::false_type {};
-template <typename E>
-struct HasPairs<E, std::void_t<decltype(std::declval<E&>().pairs)>> : std::true_type {};
-
-// db += the column sums of d [rows, m] over rows [r0, r1), in order (db: m floats, written).
-template <typename T>
-void column_sums(const T* d, int64_t m, int64_t r0, int64_t r1, T* db) {
-    using V = typename VT<T>::v;
-    constexpr int64_t L = LANES<T>;
-    for (int64_t v = 0; v < m / L; ++v) {
-        V s{};
-        for (int64_t r = r0; r < r1; ++r) {
-            s += loadv(d + r * m + v * L);
-        }
-        storev(db + v * L, s);
-    }
-}
-
-// The chunks' partial [m, k] weight gradients and [m] bias gradients summed in order, written unpadded.
-template <typename T>
-void reduce_chunks(const T* partial, int64_t chunks, int64_t m, int64_t k, T* dw, T* db, int64_t m_out,
-                   int64_t k_out) {
-    for (int64_t o = 0; o < m_out; ++o) {
-        for (int64_t j = 0; j < k_out; ++j) {
-            T sum = T(0);
-            for (int64_t c = 0; c < chunks; ++c) {
-                sum += partial[c * (m * k + m) + o * k + j];
-            }
-            dw[o * k_out + j] = sum;
-        }
-        if (db != nullptr) {
-            T sum = T(0);
-            for (int64_t c = 0; c < chunks; ++c) {
-                sum += partial[c * (m * k + m) + m * k + o];
-            }
-            db[o] = sum;
-        }
-    }
-}
-
 #if BF16_PRODUCTS
-// Two float vectors of rows r and r + 1 as 16 bf16 pairs (r's in the low half), each rounded to nearest
-// even: the operand layout of the weights' gradients.
-inline void store_pair(uint32_t* p, VT<float>::v a, VT<float>::v b) {
-    typedef uint32_t vu __attribute__((vector_size(VBYTES)));
-    vu ua, ub;
-    std::memcpy(&ua, &a, sizeof(ua));
-    std::memcpy(&ub, &b, sizeof(ub));
-    ua = (ua + 0x7FFFu + ((ua >> 16) & 1u)) >> 16;
-    ub = (ub + 0x7FFFu + ((ub >> 16) & 1u)) & 0xFFFF0000u;
-    const vu out = ua | ub;
-    std::memcpy(p, &out, sizeof(out));
-}
-
 // The same product with bf16 operands and float sums (AVX512-BF16's dot product of pairs): A [N, K] as
 // bf16 pairs along K (lda: pairs per row), B [K / 2, M, 2] as pairs of its rows (ldb: M), k pairs.
 struct PairBF16 {
@@ -287,22 +231,11 @@ inline void block(const std::vector<PairBF16>& pairs, const float* init, int64_t
             }
         }
     }
-    for (int j = 0; j < NV; ++j) {
-        VT<float>::v out[R];
-        for (int r = 0; r < R; ++r) {
+    for (int r = 0; r < R; ++r) {
+        for (int j = 0; j < NV; ++j) {
             VT<float>::v v;
             std::memcpy(&v, &acc[r][j], sizeof(v));
-            if constexpr (HasPairs<Epi>::value) {
-                out[r] = epi(r0 + r, (v0 + j) * 16, v);
-            } else {
-                epi(r0 + r, (v0 + j) * 16, v);
-            }
-        }
-        if constexpr (HasPairs<Epi>::value) {  // (r0 is even: product's row blocks)
-            for (int r = 0; epi.pairs != nullptr && r < R; r += 2) {
-                store_pair(epi.pairs + ((r0 + r) / 2) * epi.ld + (v0 + j) * 16, out[r],
-                           r + 1 < R ? out[r + 1] : VT<float>::v{});
-            }
+            epi(r0 + r, (v0 + j) * 16, v);
         }
     }
 }
@@ -313,59 +246,8 @@ inline void store_bf16(uint16_t* p, VT<float>::v v) {  // rounded to nearest eve
     const __m256bh b = _mm512_cvtneps_pbh(f);
     std::memcpy(p, &b, sizeof(b));
 }
-
-// dW = D^T In from bf16 pairs of rows with float sums: d2 [n2, m] and in2 [n2, k] hold rows 2i and 2i + 1
-// as one pair per column (``store_pair``); db (unless null) the column sums of the float D [2 n2, m]. By
-// chunks of CHUNK_ROWS rows summed in order, as ``weight_gradient``.
-void weight_gradient_bf16(const uint32_t* d2, const float* d, int64_t m, const uint32_t* in2, int64_t k, int64_t n2,
-                          float* dw, float* db, int64_t m_out, int64_t k_out) {
-    const int64_t half = CHUNK_ROWS / 2;
-    const int64_t chunks = std::max<int64_t>(1, (n2 + half - 1) / half);
-    std::unique_ptr<float[]> partial(new float[chunks * (m * k + m)]);  // (every read element is written first)
-    const int64_t kv = k / 16;
-    at::parallel_for(0, chunks, 1, [&](int64_t c0, int64_t c1) {
-        for (int64_t c = c0; c < c1; ++c) {
-            float* pw = partial.get() + c * (m * k + m);
-            const int64_t r0 = c * half, r1 = std::min(n2, r0 + half);
-            for (int64_t o0 = 0; o0 < m; o0 += OB) {
-                for (int64_t v0 = 0; v0 < kv; v0 += GB) {
-                    const int nv = int(std::min<int64_t>(GB, kv - v0));
-                    __m512 acc[OB][GB];
-                    for (int o = 0; o < OB; ++o) {
-                        for (int j = 0; j < GB; ++j) {
-                            acc[o][j] = _mm512_setzero_ps();
-                        }
-                    }
-                    for (int64_t r = r0; r < r1; ++r) {
-                        __m512bh iv[GB];
-                        for (int j = 0; j < GB; ++j) {
-                            iv[j] = j < nv ? (__m512bh)_mm512_loadu_si512(in2 + r * k + (v0 + j) * 16)
-                                           : (__m512bh)_mm512_setzero_si512();
-                        }
-                        for (int o = 0; o < OB; ++o) {
-                            const __m512bh dv = (__m512bh)_mm512_set1_epi32(int(d2[r * m + o0 + o]));
-                            for (int j = 0; j < GB; ++j) {
-                                acc[o][j] = _mm512_dpbf16_ps(acc[o][j], dv, iv[j]);
-                            }
-                        }
-                    }
-                    for (int o = 0; o < OB; ++o) {
-                        for (int j = 0; j < nv; ++j) {
-                            _mm512_storeu_ps(pw + (o0 + o) * k + (v0 + j) * 16, acc[o][j]);
-                        }
-                    }
-                }
-            }
-            if (db != nullptr) {
-                column_sums(d, m, 2 * r0, 2 * r1, pw + m * k);
-            }
-        }
-    });
-    reduce_chunks(partial.get(), chunks, m, k, dw, db, m_out, k_out);
-}
 #else
 inline void store_bf16(uint16_t*, VT<float>::v) {}  // (never called: no bf16 products in this build)
-inline void store_pair(uint32_t*, VT<float>::v, VT<float>::v) {}
 #endif
 
 template <typename P>
@@ -405,10 +287,7 @@ void product(const std::vector<P>& pairs, const typename Sum<P>::type* init, int
             for (; r + RB <= end; r += RB) {
                 block_row<RB>(pairs, init, r, vectors, epi);
             }
-            for (; r + 2 <= end; r += 2) {  // (every block starts at an even row: pairs of rows)
-                block_row<2>(pairs, init, r, vectors, epi);
-            }
-            if (r < end) {
+            for (; r < end; ++r) {
                 block_row<1>(pairs, init, r, vectors, epi);
             }
         }
@@ -454,12 +333,31 @@ void weight_gradient(const T* d, int64_t m, const T* in, int64_t k, int64_t n, T
                     }
                 }
             }
-            if (db != nullptr) {
-                column_sums(d, m, r0, r1, pb);
+            for (int64_t v = 0; db != nullptr && v < m / L; ++v) {
+                V s{};
+                for (int64_t r = r0; r < r1; ++r) {
+                    s += loadv(d + r * m + v * L);
+                }
+                storev(pb + v * L, s);
             }
         }
     });
-    reduce_chunks(partial.get(), chunks, m, k, dw, db, m_out, k_out);
+    for (int64_t o = 0; o < m_out; ++o) {
+        for (int64_t j = 0; j < k_out; ++j) {
+            T sum = T(0);
+            for (int64_t c = 0; c < chunks; ++c) {
+                sum += partial[c * (m * k + m) + o * k + j];
+            }
+            dw[o * k_out + j] = sum;
+        }
+        if (db != nullptr) {
+            T sum = T(0);
+            for (int64_t c = 0; c < chunks; ++c) {
+                sum += partial[c * (m * k + m) + m * k + o];
+            }
+            db[o] = sum;
+        }
+    }
 }
 
 inline at::Tensor as_type(const at::Tensor& t, at::ScalarType type) {
@@ -517,30 +415,24 @@ inline void store_copy(uint16_t* copy, int64_t at, typename VT<T>::v v) {
     }
 }
 
-// (Both epilogues return what they stored; bf16 products also write it as bf16 by rows, the next
-// product's operand, and as pairs of rows, the weights' gradients' operand, where those are not null.)
 template <typename T, int64_t ACT>
 struct ForwardStore {
     T* z;
     T* h;
     int64_t ld;
     uint16_t* h_bf16;  // h as bf16, or null
-    uint32_t* pairs;   // h as bf16 pairs of rows [rows / 2, ld], or null
-    typename VT<T>::v operator()(int64_t r, int64_t c, typename VT<T>::v v) {
+    void operator()(int64_t r, int64_t c, typename VT<T>::v v) {
         if constexpr (ACT == SILU) {
             const typename VT<T>::v a = v * sigmoid<T>(v);
             storev(z + r * ld + c, v);
             storev(h + r * ld + c, a);
             store_copy<T>(h_bf16, r * ld + c, a);
-            return a;
         } else if constexpr (ACT == RELU) {
             const typename VT<T>::v a = v > T(0) ? v : T(0);
             storev(h + r * ld + c, a);
             store_copy<T>(h_bf16, r * ld + c, a);
-            return a;
         } else {
             storev(z + r * ld + c, v);
-            return v;
         }
     }
 };
@@ -551,32 +443,12 @@ struct BackwardStore {  // dz_{i-1} = (dz_i W_i) act'_{i-1}
     const T* saved;
     int64_t ld;
     uint16_t* out_bf16;  // dz_{i-1} as bf16, or null
-    uint32_t* pairs;     // dz_{i-1} as bf16 pairs of rows, or null
-    typename VT<T>::v operator()(int64_t r, int64_t c, typename VT<T>::v v) {
+    void operator()(int64_t r, int64_t c, typename VT<T>::v v) {
         const typename VT<T>::v d = derivative<T, ACT>(v, loadv(saved + r * ld + c));
         storev(out + r * ld + c, d);
         store_copy<T>(out_bf16, r * ld + c, d);
-        return d;
     }
 };
-
-// A padded float matrix [rows (even), cols] as bf16 pairs of rows [rows / 2, cols, 2] (``store_pair``).
-at::Tensor pairs_copy(const at::Tensor& f) {
-    const int64_t rows = f.size(0), cols = f.size(1);
-    at::Tensor out = at::empty({rows / 2, cols, 2}, f.options().dtype(at::kBFloat16));
-    const float* src = f.data_ptr<float>();
-    uint32_t* dst = reinterpret_cast<uint32_t*>(out.data_ptr<at::BFloat16>());
-    for (int64_t r = 0; r < rows / 2; ++r) {
-        for (int64_t c = 0; c < cols; c += LANES<float>) {
-            store_pair(dst + r * cols + c, loadv(src + 2 * r * cols + c), loadv(src + (2 * r + 1) * cols + c));
-        }
-    }
-    return out;
-}
-
-inline uint32_t* pairs_data(at::Tensor& t) {
-    return t.defined() ? reinterpret_cast<uint32_t*>(t.data_ptr<at::BFloat16>()) : nullptr;
-}
 
 // A padded float matrix's bf16 copy (the operand A of bf16 products), all its elements.
 at::Tensor bf16_copy(const at::Tensor& f) {
@@ -657,8 +529,7 @@ void with_activation(int64_t act, Fn fn) {
 }
 
 // [out (a view of the padded last layer), x padded, then per layer z_i and h_i (padded; for ReLU
-// z_i is h_i, for the linear head both are its output); with ``bf16``, then the hidden layers' h_i as
-// bf16 pairs of rows (``pairs_copy``'s layout, the weights' gradients' operand)].
+// z_i is h_i, for the linear head both are its output)].
 std::vector<at::Tensor> mlp_forward(
     const at::Tensor& x,
     std::vector<at::Tensor> weights,
@@ -678,7 +549,6 @@ std::vector<at::Tensor> mlp_forward(
                 "mlp_forward: x must be [N, E] float32 or float64");
     const int64_t n = x.size(0);
     std::vector<at::Tensor> saved{at::Tensor()};
-    std::vector<at::Tensor> h_pairs;
     at::Tensor h;
     AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "mlp_forward", [&] {
         const at::Tensor input = pack<scalar_t>(x, false);  // [N padded to PAD rows, E padded]
@@ -696,7 +566,6 @@ std::vector<at::Tensor> mlp_forward(
             at::Tensor z = at::empty({rows, m}, input.options());
             at::Tensor out = act == SILU ? at::empty_like(z) : z;
             at::Tensor out_bf16 = bf16 && i < layers - 1 ? at::empty({rows, m}, z.options().dtype(at::kBFloat16)) : at::Tensor();
-            at::Tensor out_pairs = bf16 && i < layers - 1 ? at::empty({rows / 2, m, 2}, out_bf16.options()) : at::Tensor();
             // the padding rows stay zero
             std::fill(z.data_ptr<scalar_t>() + n * m, z.data_ptr<scalar_t>() + rows * m, scalar_t(0));
             if (act == SILU) {  // (else out is z)
@@ -706,7 +575,7 @@ std::vector<at::Tensor> mlp_forward(
             with_activation<scalar_t>(act, [&](auto a) {
                 rows_product<scalar_t>(h, h_bf16, weights[i], true, -1, b.data_ptr<scalar_t>(), n,
                                        ForwardStore<scalar_t, decltype(a)::value>{z.data_ptr<scalar_t>(), out.data_ptr<scalar_t>(), m,
-                                                                                  bf16_data(out_bf16), pairs_data(out_pairs)},
+                                                                                  bf16_data(out_bf16)},
                                        skips ? input : at::Tensor(), skips ? input_bf16 : at::Tensor(),
                                        skips ? *skip_weight : at::Tensor());
             });
@@ -714,12 +583,8 @@ std::vector<at::Tensor> mlp_forward(
             saved.push_back(out);
             h = out;
             h_bf16 = out_bf16;
-            if (out_pairs.defined()) {
-                h_pairs.push_back(out_pairs);
-            }
         }
     });
-    saved.insert(saved.end(), h_pairs.begin(), h_pairs.end());
     saved[0] = h.narrow(0, 0, n).narrow(1, 0, weights.back().size(0));
     return saved;
 }
@@ -737,8 +602,7 @@ std::vector<at::Tensor> mlp_backward(
     bool wants_x,
     bool bf16) {
     const int64_t layers = int64_t(weights.size());
-    TORCH_CHECK(int64_t(saved.size()) == 2 + 2 * layers + (bf16 ? layers - 1 : 0),
-                "mlp_backward: saved tensors do not match");
+    TORCH_CHECK(int64_t(saved.size()) == 2 + 2 * layers, "mlp_backward: saved tensors do not match");
     const at::Tensor& input = saved[1];
     TORCH_CHECK(!bf16 || (BF16_PRODUCTS && input.scalar_type() == at::kFloat),
                 "mlp_backward: bf16 products need float32 inputs and an AVX512-BF16 build");
@@ -772,38 +636,20 @@ std::vector<at::Tensor> mlp_backward(
             });
         }
         at::Tensor dz_bf16 = bf16 ? bf16_copy(dz) : at::Tensor();  // (the input gradients' operand)
-        at::Tensor dz_pairs = bf16 ? pairs_copy(dz) : at::Tensor();  // (the weights' gradients')
-        const at::Tensor input_pairs = bf16 ? pairs_copy(input) : at::Tensor();
-        const int64_t n2 = (n + 1) / 2;  // pairs of rows (an odd n's last pair has a zero row)
         for (int64_t i = last; i >= 0; --i) {
             const at::Tensor& in = i == 0 ? input : saved[3 + 2 * (i - 1)];  // h_{i-1}, padded
             const int64_t m = dz.size(1), k = in.size(1);
             const int64_t o_real = weights[i].size(0), k_real = weights[i].size(1);
             at::Tensor dw = at::empty({o_real, k_real}, input.options());
             at::Tensor db = at::empty({o_real}, input.options());
-            // dW_i = dz_i^T in_i (and dS = dz_i^T x at the skip layer; its bias is the layer's)
-            auto weight_grad = [&](const at::Tensor& a, const at::Tensor& a_pairs, at::Tensor& out, scalar_t* bias) {
-#if BF16_PRODUCTS
-                if constexpr (std::is_same_v<scalar_t, float>) {
-                    if (bf16) {
-                        weight_gradient_bf16(pairs_data(dz_pairs), dz.data_ptr<float>(), m,
-                                             pairs_data(const_cast<at::Tensor&>(a_pairs)), a.size(1), n2,
-                                             out.data_ptr<float>(), reinterpret_cast<float*>(bias), out.size(0),
-                                             out.size(1));  // (scalar_t is float here)
-                        return;
-                    }
-                }
-#endif
-                weight_gradient<scalar_t>(dz.data_ptr<scalar_t>(), m, a.data_ptr<scalar_t>(), a.size(1), n,
-                                          out.data_ptr<scalar_t>(), bias, out.size(0), out.size(1));
-            };
-            weight_grad(in, i == 0 ? input_pairs : (bf16 ? saved[2 + 2 * layers + (i - 1)] : at::Tensor()), dw,
-                        db.data_ptr<scalar_t>());
+            weight_gradient<scalar_t>(dz.data_ptr<scalar_t>(), m, in.data_ptr<scalar_t>(), k, n, dw.data_ptr<scalar_t>(),
+                                      db.data_ptr<scalar_t>(), o_real, k_real);
             grads[i] = as_type(dw, weights[i].scalar_type());
             grads[layers + i] = as_type(db, weights[i].scalar_type());
-            if (i == skip_layer) {
+            if (i == skip_layer) {  // (its bias is the layer's: db above)
                 at::Tensor ds = at::empty({skip_weight->size(0), skip_weight->size(1)}, input.options());
-                weight_grad(input, input_pairs, ds, nullptr);
+                weight_gradient<scalar_t>(dz.data_ptr<scalar_t>(), m, input.data_ptr<scalar_t>(), input.size(1), n,
+                                          ds.data_ptr<scalar_t>(), nullptr, ds.size(0), ds.size(1));
                 grads[2 * layers] = as_type(ds, skip_weight->scalar_type());
             }
             // the input gradients read the rows before stop_from only
@@ -830,16 +676,14 @@ std::vector<at::Tensor> mlp_backward(
             at::Tensor next = at::empty({rows, k}, input.options());  // (rows < n: all written below)
             std::fill(next.data_ptr<scalar_t>() + n * k, next.data_ptr<scalar_t>() + rows * k, scalar_t(0));
             at::Tensor next_bf16 = bf16 ? at::empty({rows, k}, dz_bf16.options()) : at::Tensor();
-            at::Tensor next_pairs = bf16 ? at::empty({rows / 2, k, 2}, dz_bf16.options()) : at::Tensor();
             const at::Tensor& s = saved[activation == SILU ? 2 + 2 * (i - 1) : 3 + 2 * (i - 1)];
             with_activation<scalar_t>(activation, [&](auto a) {
                 rows_product<scalar_t>(dz, dz_bf16, weights[i], false, keep, nullptr, n,
                                        BackwardStore<scalar_t, decltype(a)::value>{next.data_ptr<scalar_t>(), s.data_ptr<scalar_t>(), k,
-                                                                                   bf16_data(next_bf16), pairs_data(next_pairs)});
+                                                                                   bf16_data(next_bf16)});
             });
             dz = next;
             dz_bf16 = next_bf16;
-            dz_pairs = next_pairs;
         }
     });
     if (wants_x) {
