@@ -222,8 +222,8 @@ def _trained_model(cfg: TrainConfig, run: Path, device: str) -> tuple[TraceModel
             f"{path}: a checkpoint of another tracegs version, or of other settings than {run / CONFIG} "
             f"({first_line(err)}); train into a new --run folder"
         ) from None
-    # A run trained in bf16 (with AMX, as `cpu-fast` chooses, or AVX512-BF16 when asked) is rendered in
-    # fp32 on CPUs without either: there bf16 is slower, and fp32 gives the fields' values exactly.
+    # A run trained in bf16 (on AMX or AVX512-BF16, as `cpu-fast` chooses) is rendered in fp32 on CPUs
+    # without either: there bf16 is slower, and fp32 gives the fields' values exactly.
     model.bf16 = cfg.bf16 and cpu_has_fast_bf16()
     model.set_static_mask(ckpt.get("static_mask"))
     return model.eval(), ckpt
