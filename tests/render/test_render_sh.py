@@ -48,3 +48,53 @@ def test_degree0_sh_equals_rgb_path(backend):
     out_rgb = rasterize(**common, colors=rgb, backend=backend)
     assert out_sh.alpha.max() > 0.5
     torch.testing.assert_close(out_sh.image, out_rgb.image, atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+def test_native_sh_matches_reference_values_and_gradients(degree):
+    """The C++ SH colours (the native backend's) against eval_sh_colors in float64: the colours, and
+    the gradients of a random weighting of them to the coefficients (K beyond the degree's: zero)
+    and, through the view direction, to the means; a share of the colours is clamped at 0."""
+    if not native_available():
+        pytest.skip("native extension not available")
+    from tracegs.render.native import sh_colors_native
+
+    g = torch.Generator().manual_seed(degree)
+    n = 3000  # above the kernel's threshold for threads
+    means = torch.randn(n, 3, generator=g, dtype=torch.float64) * 2
+    coeffs = torch.randn(n, 16, 3, generator=g, dtype=torch.float64) * 1.5
+    viewmat = torch.eye(4, dtype=torch.float64)
+    viewmat[:3, :3] = torch.linalg.qr(torch.randn(3, 3, generator=g, dtype=torch.float64))[0]
+    viewmat[:3, 3] = torch.tensor([0.3, -0.2, 4.0], dtype=torch.float64)
+    weights = torch.randn(n, 3, generator=g, dtype=torch.float64)
+    grads = {}
+    for name, dtype in (("reference", torch.float64), ("native", torch.float32)):
+        m = means.to(dtype).clone().requires_grad_()
+        c = coeffs.to(dtype).clone().requires_grad_()
+        fn = eval_sh_colors if name == "reference" else sh_colors_native
+        colors = fn(m, c, viewmat.to(dtype), degree)
+        (colors.double() * weights).sum().backward()
+        m_grad = torch.zeros_like(means) if m.grad is None else m.grad.double()  # degree 0: no path
+        grads[name] = (colors.detach().double(), m_grad, c.grad.double())
+    (ref_c, ref_m, ref_k), (nat_c, nat_m, nat_k) = grads["reference"], grads["native"]
+    clamped = (ref_c == 0).double().mean()
+    assert 0.05 < clamped < 0.6
+    torch.testing.assert_close(nat_c, ref_c, atol=2e-6, rtol=1e-5)
+    torch.testing.assert_close(nat_k, ref_k, atol=2e-6, rtol=1e-5)
+    assert torch.all(nat_k[:, (degree + 1) ** 2 :] == 0)
+    if degree == 0:
+        assert torch.all(nat_m == 0)  # a constant colour has no direction
+    else:
+        assert ref_m.abs().max() > 1e-2
+        torch.testing.assert_close(nat_m, ref_m, atol=2e-5, rtol=1e-4)
+
+
+def test_native_sh_rejects_what_the_reference_rejects():
+    if not native_available():
+        pytest.skip("native extension not available")
+    from tracegs.render.native import sh_colors_native
+
+    with pytest.raises(ValueError, match="sh_degree=2"):
+        sh_colors_native(torch.zeros(4, 3), torch.zeros(4, 4, 3), torch.eye(4), 2)
+    with pytest.raises(ValueError, match="0..3"):
+        sh_colors_native(torch.zeros(4, 3), torch.zeros(4, 25, 3), torch.eye(4), 4)

@@ -17,6 +17,7 @@ from torch import Tensor
 
 from ..cpp import EXTENSIONS
 from .reference import Projection
+from .sh import check_sh_coeffs
 
 EXTENSION = EXTENSIONS["tracegs_raster_cpu"]
 
@@ -110,6 +111,30 @@ class _RasterizeFunction(torch.autograd.Function):
         )
         v_means2d, v_conics, v_colors, v_opacities, v_depths = grads
         return v_means2d, v_conics, v_colors, v_opacities, v_depths, None, None, None, None
+
+
+class _SHFunction(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means, coeffs, viewmat, degree):
+        ctx.save_for_backward(means, coeffs, viewmat)
+        ctx.degree = degree
+        return load_extension().sh_forward(means, coeffs, viewmat, degree, torch.get_num_threads())
+
+    @staticmethod
+    def backward(ctx, v_colors):
+        means, coeffs, viewmat = ctx.saved_tensors
+        v_means, v_coeffs = load_extension().sh_backward(
+            means, coeffs, viewmat, ctx.degree, v_colors.contiguous(), torch.get_num_threads()
+        )
+        return v_means, v_coeffs, None, None
+
+
+def sh_colors_native(means: Tensor, coeffs: Tensor, viewmat: Tensor, degree: int) -> Tensor:
+    """C++ version of :func:`tracegs.render.sh.eval_sh_colors` (float32): [N, 3] colours of means
+    [N, 3] with SH coefficients [N, K, 3] seen from the camera of ``viewmat`` [4, 4]."""
+    check_sh_coeffs(coeffs, degree)
+    f = torch.float32
+    return _SHFunction.apply(means.to(f).contiguous(), coeffs.to(f).contiguous(), _f32(viewmat), int(degree))
 
 
 def project_native(

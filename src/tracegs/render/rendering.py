@@ -107,7 +107,12 @@ def rasterize(
         )  # fmt: skip
         return RenderResult(image, alpha, depth, means2d, radii, backend)
 
-    rgb = colors if sh_degree is None else eval_sh_colors(means, colors, viewmat, sh_degree)  # [N, 3]
+    if sh_degree is None:
+        rgb = colors
+    elif backend == "native":
+        rgb = native.sh_colors_native(means, colors, viewmat, sh_degree)  # [N, 3]
+    else:
+        rgb = eval_sh_colors(means, colors, viewmat, sh_degree)
     if backend == "native":
         proj = native.project_native(
             means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane, eps2d

@@ -74,6 +74,19 @@ def sh_basis(degree: int, dirs: Tensor) -> Tensor:
     return torch.stack(out, dim=-1)
 
 
+def check_sh_coeffs(coeffs: Tensor, degree: int) -> int:
+    """The number of coefficients per channel that ``degree`` reads; ValueError where ``coeffs`` is not
+    [N, K, 3] with that many or ``degree`` is not 0..3."""
+    if not 0 <= degree <= 3:
+        raise ValueError(f"sh_degree must be in 0..3, got {degree}")
+    nb = num_sh_bases(degree)
+    if coeffs.dim() != 3 or coeffs.shape[-1] != 3 or coeffs.shape[1] < nb:
+        raise ValueError(
+            f"SH colors must be [N, K>={nb}, 3] for sh_degree={degree}, got {tuple(coeffs.shape)}"
+        )
+    return nb
+
+
 def camera_center(viewmat: Tensor) -> Tensor:
     """World position of the camera of a world-to-camera matrix. viewmat: [4, 4] -> [3]."""
     R, t = viewmat[:3, :3], viewmat[:3, 3]
@@ -85,11 +98,7 @@ def eval_sh_colors(means: Tensor, coeffs: Tensor, viewmat: Tensor, degree: int) 
 
     means: [N, 3], coeffs: [N, K, 3] with K >= (degree + 1)^2, viewmat: [4, 4]. Returns [N, 3].
     """
-    nb = num_sh_bases(degree)
-    if coeffs.dim() != 3 or coeffs.shape[-1] != 3 or coeffs.shape[1] < nb:
-        raise ValueError(
-            f"SH colors must be [N, K>={nb}, 3] for sh_degree={degree}, got {tuple(coeffs.shape)}"
-        )
+    nb = check_sh_coeffs(coeffs, degree)
     dirs = means - camera_center(viewmat).to(means)  # [N, 3]
     dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     basis = sh_basis(degree, dirs)  # [N, nb]
