@@ -275,23 +275,31 @@ inline void block_row(const std::vector<P>& pairs, const typename Sum<P>::type* 
     }
 }
 
+// Tiles [t0, t1) of a row-wise product. Not inlined: with one thread at::parallel_for calls its body
+// in place, and inlined there the product's loops were compiled anew, with SiLU's constants held in
+// vector registers and the sums spilled to the stack (1.5x as long as the same code called by the
+// threads); one function serves both.
+template <typename P, typename Epi>
+__attribute__((noinline)) void product_tiles(const std::vector<P>& pairs, const typename Sum<P>::type* init,
+                                             int64_t n, int64_t vectors, int64_t t0, int64_t t1, Epi& epi) {
+    for (int64_t t = t0; t < t1; ++t) {
+        const int64_t end = std::min(n, (t + 1) * TILE_ROWS);
+        int64_t r = t * TILE_ROWS;
+        for (; r + RB <= end; r += RB) {
+            block_row<RB>(pairs, init, r, vectors, epi);
+        }
+        for (; r < end; ++r) {
+            block_row<1>(pairs, init, r, vectors, epi);
+        }
+    }
+}
+
 // The row-wise product over all n rows, m (padded) columns, in parallel tiles of rows.
 template <typename P, typename Epi>
 void product(const std::vector<P>& pairs, const typename Sum<P>::type* init, int64_t n, int64_t m, Epi epi) {
     const int64_t vectors = m / LANES<typename Sum<P>::type>;
     const int64_t tiles = (n + TILE_ROWS - 1) / TILE_ROWS;
-    at::parallel_for(0, tiles, 1, [&](int64_t t0, int64_t t1) {
-        for (int64_t t = t0; t < t1; ++t) {
-            const int64_t end = std::min(n, (t + 1) * TILE_ROWS);
-            int64_t r = t * TILE_ROWS;
-            for (; r + RB <= end; r += RB) {
-                block_row<RB>(pairs, init, r, vectors, epi);
-            }
-            for (; r < end; ++r) {
-                block_row<1>(pairs, init, r, vectors, epi);
-            }
-        }
-    });
+    at::parallel_for(0, tiles, 1, [&](int64_t t0, int64_t t1) { product_tiles(pairs, init, n, vectors, t0, t1, epi); });
 }
 
 // dW = D^T In and (unless db is null) db = column sums of D, over n rows of D [n, M] and In [n, K]
