@@ -773,6 +773,20 @@ inline void sh_direction(const float* mean, const float centre[3], float n[3], f
     n[2] = d2 * inv;
 }
 
+// One Gaussian's SH sum + 0.5 per channel (before the clamp at 0) into ``rgb``, with what the backward
+// reuses: its unit direction ``n``, 1 / the clamped length, whether it was clamped, and the basis ``b``.
+inline void sh_colour(int degree, const float* mean, const float centre[3], const float* c, float rgb[3],
+                      float n[3], float& inv, bool& clamped, float b[16]) {
+    sh_direction(mean, centre, n, inv, clamped);
+    sh_basis(degree, n[0], n[1], n[2], b);
+    const int nb = (degree + 1) * (degree + 1);
+    for (int ch = 0; ch < 3; ++ch) {
+        float sum = 0.f;
+        for (int k = 0; k < nb; ++k) sum += b[k] * c[3 * k + ch];
+        rgb[ch] = sum + 0.5f;
+    }
+}
+
 }  // namespace
 
 // Colours [N, 3] of Gaussians ``means`` [N, 3] with SH coefficients ``coeffs`` [N, K, 3] (K >=
@@ -780,7 +794,6 @@ inline void sh_direction(const float* mean, const float centre[3], float n[3], f
 at::Tensor sh_forward(at::Tensor means, at::Tensor coeffs, at::Tensor viewmat, int64_t degree,
                       int64_t num_threads) {
     const int64_t N = means.size(0), K = coeffs.size(1);
-    const int nb = static_cast<int>((degree + 1) * (degree + 1));
     float centre[3];
     camera_centre(viewmat, centre);
     auto colors = at::empty({N, 3}, means.options());
@@ -790,16 +803,10 @@ at::Tensor sh_forward(at::Tensor means, at::Tensor coeffs, at::Tensor viewmat, i
     const int deg = static_cast<int>(degree);
 #pragma omp parallel for schedule(static) num_threads(num_threads) if (N > 4096)
     for (int64_t g = 0; g < N; ++g) {
-        float n[3], inv, b[16];
+        float rgb[3], n[3], inv, b[16];
         bool clamped;
-        sh_direction(pm + 3 * g, centre, n, inv, clamped);
-        sh_basis(deg, n[0], n[1], n[2], b);
-        const float* c = pc + g * K * 3;
-        for (int ch = 0; ch < 3; ++ch) {
-            float rgb = 0.f;
-            for (int k = 0; k < nb; ++k) rgb += b[k] * c[3 * k + ch];
-            out[3 * g + ch] = std::max(rgb + 0.5f, 0.f);
-        }
+        sh_colour(deg, pm + 3 * g, centre, pc + g * K * 3, rgb, n, inv, clamped, b);
+        for (int ch = 0; ch < 3; ++ch) out[3 * g + ch] = std::max(rgb[ch], 0.f);
     }
     return colors;
 }
@@ -823,16 +830,11 @@ std::vector<at::Tensor> sh_backward(at::Tensor means, at::Tensor coeffs, at::Ten
     const int deg = static_cast<int>(degree);
 #pragma omp parallel for schedule(static) num_threads(num_threads) if (N > 4096)
     for (int64_t g = 0; g < N; ++g) {
-        float n[3], inv, b[16], vb[16], vrgb[3];
+        float rgb[3], n[3], inv, b[16], vb[16], vrgb[3];
         bool clamped;
-        sh_direction(pm + 3 * g, centre, n, inv, clamped);
-        sh_basis(deg, n[0], n[1], n[2], b);
         const float* c = pc + g * K * 3;
-        for (int ch = 0; ch < 3; ++ch) {
-            float rgb = 0.f;
-            for (int k = 0; k < nb; ++k) rgb += b[k] * c[3 * k + ch];
-            vrgb[ch] = rgb + 0.5f >= 0.f ? gv[3 * g + ch] : 0.f;
-        }
+        sh_colour(deg, pm + 3 * g, centre, c, rgb, n, inv, clamped, b);
+        for (int ch = 0; ch < 3; ++ch) vrgb[ch] = rgb[ch] >= 0.f ? gv[3 * g + ch] : 0.f;
         float* o = vc + g * K * 3;
         for (int k = 0; k < nb; ++k) {
             vb[k] = c[3 * k] * vrgb[0] + c[3 * k + 1] * vrgb[1] + c[3 * k + 2] * vrgb[2];
