@@ -8,8 +8,9 @@
 // S = A1 A2 / (B1 B2), A1 = 2 m1 my + C1, A2 = 2 (m12 - m1 my) + C2, B1 = m1^2 + my^2 + C1,
 // B2 = m2 - m1^2 + myy - my^2 + C2; dS/dx(q) = sum_p g(p - q) [dS/dm1 + 2 x(q) dS/dm2 + y(q) dS/dm12](p),
 // i.e. the three partial maps filtered by the transposed ("full") window. The forward keeps them.
-// The filterings run as parallel tasks (15 forward: 3 channels x 5 moments; 9 backward); each
-// channel's mean is summed in a fixed order, so the result does not depend on the thread count.
+// The filterings run as parallel tasks (15 forward: 3 channels x 5 moments; 9 backward), the map
+// by fixed blocks of rows; each channel's mean is summed over those blocks in a fixed order, so the
+// result does not depend on the thread count.
 
 #include <ATen/Parallel.h>
 #include <ATen/core/Tensor.h>
@@ -19,6 +20,7 @@
 #include <torch/library.h>
 
 #include <cmath>
+#include <memory>
 #include <vector>
 
 namespace {
@@ -40,23 +42,47 @@ std::vector<float> window() {
     return g;
 }
 
-// [h, w] -> [h - K + 1, w - K + 1]: the window along rows, then along columns ("valid").
-void filter_valid(const float* in, float* tmp, float* out, int h, int w, const float* g) {
+// [h, w] -> [h - K + 1, w - K + 1]: the window along rows, then along columns ("valid"). Each output
+// is one sum over the taps in registers, the loop over outputs vectorised (a sum kept in memory
+// across the taps was 2 stores and 2 loads a tap); the taps are added in order, from zero.
+void filter_valid(const float* __restrict__ in, float* __restrict__ tmp, float* __restrict__ out, int h, int w,
+                  const float* __restrict__ g) {
     const int wo = w - kTaps + 1, ho = h - kTaps + 1;
+    float gk[kTaps];
+    for (int k = 0; k < kTaps; ++k) gk[k] = g[k];
     for (int i = 0; i < h; ++i) {
-        float* t = tmp + i * wo;
-        const float* r = in + i * w;
-        for (int j = 0; j < wo; ++j) t[j] = 0.0f;
-        for (int k = 0; k < kTaps; ++k)
-            for (int j = 0; j < wo; ++j) t[j] += g[k] * r[j + k];
+        float* __restrict__ t = tmp + i * wo;
+        const float* __restrict__ r = in + i * w;
+        for (int j = 0; j < wo; ++j) {
+            float sum = 0.0f;
+            for (int k = 0; k < kTaps; ++k) sum += gk[k] * r[j + k];
+            t[j] = sum;
+        }
     }
     for (int i = 0; i < ho; ++i) {
-        float* o = out + i * wo;
-        for (int j = 0; j < wo; ++j) o[j] = 0.0f;
-        for (int k = 0; k < kTaps; ++k) {
-            const float* t = tmp + (i + k) * wo;
-            for (int j = 0; j < wo; ++j) o[j] += g[k] * t[j];
+        float* __restrict__ o = out + i * wo;
+        const float* __restrict__ t = tmp + i * wo;
+        for (int j = 0; j < wo; ++j) {
+            float sum = 0.0f;
+            for (int k = 0; k < kTaps; ++k) sum += gk[k] * t[k * wo + j];
+            o[j] = sum;
         }
+    }
+}
+
+// The SSIM map over elements [i0, i1) from the moments, and its partials (see the top).
+void ssim_map(const float* __restrict__ m1, const float* __restrict__ my, const float* __restrict__ m2,
+              const float* __restrict__ myy, const float* __restrict__ m12, float* __restrict__ d1,
+              float* __restrict__ d2, float* __restrict__ d12, float* __restrict__ sm, int i0, int i1) {
+    for (int i = i0; i < i1; ++i) {
+        const float mx = m1[i], mu = my[i];
+        const float a1 = 2.0f * mx * mu + kC1, a2 = 2.0f * (m12[i] - mx * mu) + kC2;
+        const float b1 = mx * mx + mu * mu + kC1, b2 = (m2[i] - mx * mx) + (myy[i] - mu * mu) + kC2;
+        const float s = (a1 * a2) / (b1 * b2);
+        sm[i] = s;
+        d1[i] = s * (2.0f * mu / a1 - 2.0f * mu / a2 - 2.0f * mx / b1 + 2.0f * mx / b2);
+        d2[i] = -s / b2;
+        d12[i] = s * 2.0f / a2;
     }
 }
 
@@ -106,46 +132,53 @@ std::vector<at::Tensor> ssim_forward(at::Tensor img, at::Tensor ref) {
     const float* y_hwc = ref.data_ptr<float>();
     float* p = partials.data_ptr<float>();
     // the moments [channel][m1, my, m2, myy, m12][Ho * Wo]
-    std::vector<float> moments(3 * 5 * m);
+    const std::unique_ptr<float[]> moments(new float[3 * 5 * m]);  // (every element written before read)
     at::parallel_for(0, 15, 1, [&](int64_t j0, int64_t j1) {
-        std::vector<float> x(n), y(n), tmp(h * wo);
+        const std::unique_ptr<float[]> x(new float[n]), y(new float[n]), tmp(new float[h * wo]);
         for (int64_t j = j0; j < j1; ++j) {
             const int c = int(j / 5), moment = int(j % 5);
-            plane(moment == 1 || moment == 3 ? y_hwc : x_hwc, c, n, x.data());
+            plane(moment == 1 || moment == 3 ? y_hwc : x_hwc, c, n, x.get());
             if (moment == 2 || moment == 3) {
                 for (int i = 0; i < n; ++i) x[i] = x[i] * x[i];
             } else if (moment == 4) {
-                plane(y_hwc, c, n, y.data());
+                plane(y_hwc, c, n, y.get());
                 for (int i = 0; i < n; ++i) x[i] = x[i] * y[i];
             }
-            filter_valid(x.data(), tmp.data(), moments.data() + j * m, h, w, g.data());
+            filter_valid(x.get(), tmp.get(), moments.get() + j * m, h, w, g.data());
         }
     });
-    double sums[3];
-    at::parallel_for(0, 3, 1, [&](int64_t c0, int64_t c1) {
-        for (int64_t c = c0; c < c1; ++c) {
-            const float* m1 = moments.data() + (5 * c + 0) * m;
-            const float* my = moments.data() + (5 * c + 1) * m;
-            const float* m2 = moments.data() + (5 * c + 2) * m;
-            const float* myy = moments.data() + (5 * c + 3) * m;
-            const float* m12 = moments.data() + (5 * c + 4) * m;
+    // the SSIM map and its partials by fixed blocks of rows (tasks of equal size for any thread count),
+    // in a function of their own with the map in a buffer, so that the element-wise loop vectorises
+    // (a double sum in the same loop, or the lambda's pointers, kept it scalar); each block's sum in
+    // double, the blocks' sums added in order. With the filters' sums in registers: the forward at
+    // 128 x 128 px on two threads 0.48 -> 0.18 ms, the same maps to the bit.
+    constexpr int kBlocks = 8;  // per channel
+    const std::unique_ptr<float[]> map(new float[3 * m]);
+    double block_sums[3 * kBlocks];
+    at::parallel_for(0, 3 * kBlocks, 1, [&](int64_t b0, int64_t b1) {
+        for (int64_t b = b0; b < b1; ++b) {
+            const int64_t c = b / kBlocks, part = b % kBlocks;
+            const int i0 = int(part * ho / kBlocks) * wo, i1 = int((part + 1) * ho / kBlocks) * wo;
+            const float* m1 = moments.get() + (5 * c + 0) * m;
+            const float* my = moments.get() + (5 * c + 1) * m;
+            const float* m2 = moments.get() + (5 * c + 2) * m;
+            const float* myy = moments.get() + (5 * c + 3) * m;
+            const float* m12 = moments.get() + (5 * c + 4) * m;
             float* d1 = p + (3 * c + 0) * m;
             float* d2 = p + (3 * c + 1) * m;
             float* d12 = p + (3 * c + 2) * m;
+            float* sm = map.get() + c * m;
+            ssim_map(m1, my, m2, myy, m12, d1, d2, d12, sm, i0, i1);
             double sum = 0.0;
-            for (int i = 0; i < m; ++i) {
-                const float mx = m1[i], mu = my[i];
-                const float a1 = 2.0f * mx * mu + kC1, a2 = 2.0f * (m12[i] - mx * mu) + kC2;
-                const float b1 = mx * mx + mu * mu + kC1, b2 = (m2[i] - mx * mx) + (myy[i] - mu * mu) + kC2;
-                const float s = (a1 * a2) / (b1 * b2);
-                sum += s;
-                d1[i] = s * (2.0f * mu / a1 - 2.0f * mu / a2 - 2.0f * mx / b1 + 2.0f * mx / b2);
-                d2[i] = -s / b2;
-                d12[i] = s * 2.0f / a2;
-            }
-            sums[c] = sum / m;
+            for (int i = i0; i < i1; ++i) sum += sm[i];
+            block_sums[b] = sum;
         }
     });
+    double sums[3] = {0.0, 0.0, 0.0};
+    for (int c = 0; c < 3; ++c) {
+        for (int part = 0; part < kBlocks; ++part) sums[c] += block_sums[c * kBlocks + part];
+        sums[c] /= m;
+    }
     const double total = sums[0] + sums[1] + sums[2];
     return {at::full({}, static_cast<float>(total / 3.0), img.options()), partials};
 }
@@ -164,17 +197,18 @@ at::Tensor ssim_backward(at::Tensor img, at::Tensor ref, at::Tensor partials, do
     const float* p = partials.contiguous().data_ptr<float>();
     float* o = out.data_ptr<float>();
     const float scale = static_cast<float>(grad / (3.0 * m));  // the mean over channels and pixels
-    std::vector<float> filtered(9 * n);  // [channel][the three partial maps][H * W]
+    // [channel][the three partial maps][H * W] (every element written before read)
+    const std::unique_ptr<float[]> filtered(new float[9 * n]);
     at::parallel_for(0, 9, 1, [&](int64_t j0, int64_t j1) {
-        std::vector<float> tmp(h * wo);
+        const std::unique_ptr<float[]> tmp(new float[h * wo]);
         for (int64_t j = j0; j < j1; ++j) {
-            filter_full(p + j * m, tmp.data(), filtered.data() + j * n, h, w, g.data());
+            filter_full(p + j * m, tmp.get(), filtered.get() + j * n, h, w, g.data());
         }
     });
     at::parallel_for(0, n, 2048, [&](int64_t i0, int64_t i1) {
         for (int64_t i = i0; i < i1; ++i) {
             for (int c = 0; c < 3; ++c) {
-                const float* f = filtered.data() + 3 * c * n;
+                const float* f = filtered.get() + 3 * c * n;
                 o[3 * i + c] = scale * (f[i] + 2.0f * x_hwc[3 * i + c] * f[n + i] + y_hwc[3 * i + c] * f[2 * n + i]);
             }
         }
