@@ -766,11 +766,14 @@ at::Tensor positional_encoding(const at::Tensor& u0, int64_t frequencies, bool i
             const int64_t j0 = b * L, count = std::min<int64_t>(L, n * d - j0);
             float lane[L] = {};
             std::memcpy(lane, up + j0, count * sizeof(float));
-            int64_t base[L];
-            for (int64_t l = 0; l < count; ++l) {
-                base[l] = (j0 + l) / d * e + (j0 + l) % d;
+            int64_t base[L];  // where input j0 + l's first output goes (one division a block, not a lane)
+            for (int64_t l = 0, row = j0 / d, channel = j0 % d; l < count; ++l) {
+                base[l] = row * e + channel;
                 if (include_input) {
                     op[base[l]] = lane[l];
+                }
+                if (++channel == d) {
+                    channel = 0, ++row;
                 }
             }
             const VT<float>::v x = loadv(lane);
