@@ -1,8 +1,11 @@
 // The midpoint RK2 of physics/integrate.py (``rk2_scheme`` with the quaternion update of ``rotate``,
-// chained over n equal sub-steps with ``params_at``), forward and backward, one particle at a time.
+// chained over n equal sub-steps with ``params_at``), forward and backward, particle by particle.
 // In PyTorch a sub-step is ~60 element-wise ops on [N, 3] tensors, each with its own autograd node:
 // at the demo's sizes the integration cost more than f_trd's matrix products, all of it per-op
 // overhead (docs/DESIGN.md, "Fused RK2"). Here a particle's whole path is ~200 flops in registers.
+// In float32, 16 particles go through each formula at once (GCC vector extensions: one AVX-512
+// register or two AVX2 ones; the lane-by-lane code took 2.5x as long at the demo's sizes); float64
+// (the tests' finite differences) runs one particle at a time.
 //
 // Per sub-step (h = dt / 2; v, w, a, e: equivalent velocity, angular velocity and their rates):
 //   x_mid = x + h (v + w x x),   x' = x + dt ((v + h a) + (w + h e) x x_mid),
@@ -22,6 +25,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <type_traits>
+#include <vector>
 
 namespace {
 
@@ -29,100 +34,190 @@ constexpr int MAX_STEPS = 64;  // sub-steps a backward can replay (the caller fa
 constexpr double SMALL_ANGLE = 1e-3;  // physics/so3.py: below it, the Taylor series of quat(r)
 constexpr double NORM_EPS = 1e-12;    // physics/so3.py quat_normalize's clamp
 
+// The lanes a kernel computes with: S (one number, or a vector of them) and its element type T.
+typedef float float16 __attribute__((vector_size(64)));
 template <typename T>
+struct Lanes {  // one particle at a time
+    using S = T;
+    static constexpr int64_t W = 1;
+};
+template <>
+struct Lanes<float> {  // 16 particles at a time
+    using S = float16;
+    static constexpr int64_t W = 16;
+};
+template <typename S>
+struct Element {
+    using T = S;
+};
+template <>
+struct Element<float16> {
+    using T = float;
+};
+template <typename S>
+constexpr bool IS_VECTOR = !std::is_same_v<S, typename Element<S>::T>;
+
+// Element-wise sqrt, cos and sin (lane by lane for vectors: std's functions, as the scalar path).
+template <typename S>
+inline S sqrt_(S u) {
+    if constexpr (IS_VECTOR<S>) {
+        for (int l = 0; l < 16; ++l) u[l] = std::sqrt(u[l]);
+        return u;
+    } else {
+        return std::sqrt(u);
+    }
+}
+template <typename S>
+inline void cos_sin(S t, S& c, S& s) {
+    if constexpr (IS_VECTOR<S>) {
+        for (int l = 0; l < 16; ++l) c[l] = std::cos(t[l]), s[l] = std::sin(t[l]);
+    } else {
+        c = std::cos(t), s = std::sin(t);
+    }
+}
+
+template <typename S>
 struct V3 {
-    T x, y, z;
+    S x, y, z;
 };
 
-template <typename T>
-inline V3<T> operator+(V3<T> a, V3<T> b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
-template <typename T>
-inline V3<T> operator*(T s, V3<T> a) { return {s * a.x, s * a.y, s * a.z}; }
-template <typename T>
-inline T dot(V3<T> a, V3<T> b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-template <typename T>
-inline V3<T> cross(V3<T> a, V3<T> b) {
+template <typename S>
+inline V3<S> operator+(V3<S> a, V3<S> b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
+template <typename K, typename S>
+inline V3<S> operator*(K k, V3<S> a) { return {k * a.x, k * a.y, k * a.z}; }  // (K: a number or S)
+template <typename S>
+inline S dot(V3<S> a, V3<S> b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+template <typename S>
+inline V3<S> cross(V3<S> a, V3<S> b) {
     return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
 }
 
-template <typename T>
+template <typename S>
 struct Q {
-    T w, x, y, z;
+    S w, x, y, z;
 };
 
-template <typename T>
-inline Q<T> mul(Q<T> a, Q<T> b) {  // Hamilton product, as so3.quat_multiply
+template <typename S>
+inline Q<S> mul(Q<S> a, Q<S> b) {  // Hamilton product, as so3.quat_multiply
     return {a.w * b.w - a.x * b.x - a.y * b.y - a.z * b.z,
             a.w * b.x + a.x * b.w + a.y * b.z - a.z * b.y,
             a.w * b.y - a.x * b.z + a.y * b.w + a.z * b.x,
             a.w * b.z + a.x * b.y - a.y * b.x + a.z * b.w};
 }
-template <typename T>
-inline Q<T> conj(Q<T> a) { return {a.w, -a.x, -a.y, -a.z}; }
+template <typename S>
+inline Q<S> conj(Q<S> a) { return {a.w, -a.x, -a.y, -a.z}; }
 
 // quat(r) = (cos(t/2), sin(t/2)/t r), t = |r| (so3.axis_angle_to_quat); ``dw``, ``ds``: the
-// coefficients of r in d(cos(t/2))/dr and d(sin(t/2)/t)/dr.
-template <typename T>
-inline void axis_angle(V3<T> r, T& w, T& s, T& dw, T& ds) {
-    const T u = dot(r, r);
-    if (u < T(SMALL_ANGLE * SMALL_ANGLE)) {
-        w = T(1) - u / T(8) + u * u / T(384);
-        s = T(0.5) - u / T(48) + u * u / T(3840);
-        dw = T(-0.25) + u / T(96);
-        ds = T(-1) / T(24) + u / T(960);
-    } else {
-        const T t = std::sqrt(u);
-        w = std::cos(t / T(2));
-        s = std::sin(t / T(2)) / t;
-        dw = -s / T(2);
-        ds = (w / T(2) - s) / u;
+// coefficients of r in d(cos(t/2))/dr and d(sin(t/2)/t)/dr. Vectors take both forms and choose per
+// lane (the series' lanes of the other form may hold NaN: not chosen).
+template <typename S>
+inline void axis_angle(V3<S> r, S& w, S& s, S& dw, S& ds) {
+    using T = typename Element<S>::T;
+    const S u = dot(r, r);
+    const auto series = u < T(SMALL_ANGLE * SMALL_ANGLE);
+    if constexpr (!IS_VECTOR<S>) {
+        if (series) {
+            w = T(1) - u / T(8) + u * u / T(384);
+            s = T(0.5) - u / T(48) + u * u / T(3840);
+            dw = T(-0.25) + u / T(96);
+            ds = T(-1) / T(24) + u / T(960);
+            return;
+        }
+    }
+    const S t = sqrt_(u);
+    S c, sn;
+    cos_sin(t / T(2), c, sn);
+    w = c;
+    s = sn / t;
+    dw = -s / T(2);
+    ds = (w / T(2) - s) / u;
+    if constexpr (IS_VECTOR<S>) {
+        w = series ? T(1) - u / T(8) + u * u / T(384) : w;
+        s = series ? T(0.5) - u / T(48) + u * u / T(3840) : s;
+        dw = series ? T(-0.25) + u / T(96) : dw;
+        ds = series ? T(-1) / T(24) + u / T(960) : ds;
     }
 }
 
-template <typename T>
+template <typename S>
 struct State {
-    V3<T> x, v, w;
-    Q<T> q;
+    V3<S> x, v, w;
+    Q<S> q;
 };
 
-template <typename T>
-inline V3<T> load3(const T* p) { return {p[0], p[1], p[2]}; }
-template <typename T>
-inline void store3(T* p, V3<T> a) { p[0] = a.x; p[1] = a.y; p[2] = a.z; }
+// Rows [i, i + count) of a [N, C] tensor's column c, as lanes (missing lanes: ``fill``).
+template <typename S, typename T>
+inline S load_lanes(const T* p, int64_t i, int64_t count, int64_t cols, int64_t c, T fill = T(0)) {
+    if constexpr (IS_VECTOR<S>) {
+        S out;
+        for (int64_t l = 0; l < 16; ++l) out[l] = l < count ? p[(i + l) * cols + c] : fill;
+        return out;
+    } else {
+        return p[i * cols + c];
+    }
+}
+template <typename S, typename T>
+inline void store_lanes(T* p, int64_t i, int64_t count, int64_t cols, int64_t c, S v) {
+    if constexpr (IS_VECTOR<S>) {
+        for (int64_t l = 0; l < count; ++l) p[(i + l) * cols + c] = v[l];
+    } else {
+        p[i * cols + c] = v;
+    }
+}
+template <typename S, typename T>
+inline V3<S> load3(const T* p, int64_t i, int64_t count) {
+    return {load_lanes<S>(p, i, count, 3, 0), load_lanes<S>(p, i, count, 3, 1), load_lanes<S>(p, i, count, 3, 2)};
+}
+template <typename S, typename T>
+inline void store3(T* p, int64_t i, int64_t count, V3<S> a) {
+    store_lanes(p, i, count, 3, 0, a.x), store_lanes(p, i, count, 3, 1, a.y), store_lanes(p, i, count, 3, 2, a.z);
+}
+template <typename S, typename T>
+inline Q<S> load4(const T* p, int64_t i, int64_t count, T fill_w = T(1)) {  // (missing lanes: (fill_w, 0, 0, 0))
+    return {load_lanes<S>(p, i, count, 4, 0, fill_w), load_lanes<S>(p, i, count, 4, 1),
+            load_lanes<S>(p, i, count, 4, 2), load_lanes<S>(p, i, count, 4, 3)};
+}
+template <typename S, typename T>
+inline void store4(T* p, int64_t i, int64_t count, Q<S> a) {
+    store_lanes(p, i, count, 4, 0, a.w), store_lanes(p, i, count, 4, 1, a.x);
+    store_lanes(p, i, count, 4, 2, a.y), store_lanes(p, i, count, 4, 3, a.z);
+}
 
-// Particle i's state at the start (orientation the identity when only positions move).
-template <typename T>
-inline State<T> start_state(const T* x, const T* q, const T* v, const T* w, int64_t i, bool rotate) {
-    State<T> s{load3(x + 3 * i), load3(v + 3 * i), load3(w + 3 * i), {T(1), T(0), T(0), T(0)}};
-    if (rotate) s.q = {q[4 * i], q[4 * i + 1], q[4 * i + 2], q[4 * i + 3]};
+// Particles [i, i + count)'s state at the start (orientation the identity when only positions move).
+template <typename S, typename T>
+inline State<S> start_state(const T* x, const T* q, const T* v, const T* w, int64_t i, int64_t count, bool rotate) {
+    const S one = S{} + T(1), zero = S{};
+    State<S> s{load3<S>(x, i, count), load3<S>(v, i, count), load3<S>(w, i, count), {one, zero, zero, zero}};
+    if (rotate) s.q = load4<S>(q, i, count);
     return s;
 }
 
 // What a sub-step's backward reads: its start state and the intermediates of its rotation.
-template <typename T>
+template <typename S>
 struct Record {
-    State<T> start;
-    V3<T> x_mid, w_mid, r;  // r = dt w_mid, the rotation vector
-    Q<T> dq, m;             // dq = quat(r), m = dq o q before normalising
-    T qs, dw, ds, len;      // axis_angle's s and derivative coefficients; |m|
+    State<S> start;
+    V3<S> x_mid, w_mid, r;  // r = dt w_mid, the rotation vector
+    Q<S> dq, m;             // dq = quat(r), m = dq o q before normalising
+    S qs, dw, ds, len;      // axis_angle's s and derivative coefficients; |m|
 };
 
 // One sub-step, in place; ``rec`` (if given) receives what the backward needs.
-template <typename T>
-inline void substep(State<T>& s, V3<T> a, V3<T> e, T dt, bool rotate, Record<T>* rec = nullptr) {
+template <typename S, typename T>
+inline void substep(State<S>& s, V3<S> a, V3<S> e, T dt, bool rotate, Record<S>* rec = nullptr) {
     const T h = T(0.5) * dt;
-    const V3<T> x_mid = s.x + h * (s.v + cross(s.w, s.x));
-    const V3<T> v_mid = s.v + h * a, w_mid = s.w + h * e;
-    const V3<T> x_new = s.x + dt * (v_mid + cross(w_mid, x_mid));
-    if (rec) *rec = {s, x_mid, w_mid, dt * w_mid, {}, {}, T(0), T(0), T(0), T(0)};
+    const V3<S> x_mid = s.x + h * (s.v + cross(s.w, s.x));
+    const V3<S> v_mid = s.v + h * a, w_mid = s.w + h * e;
+    const V3<S> x_new = s.x + dt * (v_mid + cross(w_mid, x_mid));
+    if (rec) rec->start = s, rec->x_mid = x_mid, rec->w_mid = w_mid, rec->r = dt * w_mid;  // (the rest: below)
     if (rotate) {
-        T qw, qs, dw, ds;
-        const V3<T> r = dt * w_mid;
+        S qw, qs, dw, ds;
+        const V3<S> r = dt * w_mid;
         axis_angle(r, qw, qs, dw, ds);
-        const Q<T> dq{qw, qs * r.x, qs * r.y, qs * r.z};
-        const Q<T> m = mul(dq, s.q);
-        const T len = std::sqrt(m.w * m.w + m.x * m.x + m.y * m.y + m.z * m.z);
-        const T norm = std::max(len, T(NORM_EPS));
+        const Q<S> dq{qw, qs * r.x, qs * r.y, qs * r.z};
+        const Q<S> m = mul(dq, s.q);
+        const S len = sqrt_(m.w * m.w + m.x * m.x + m.y * m.y + m.z * m.z);
+        const auto above = len > T(NORM_EPS);
+        const S norm = above ? len : S{} + T(NORM_EPS);  // max(len, NORM_EPS)
         s.q = {m.w / norm, m.x / norm, m.y / norm, m.z / norm};
         if (rec) rec->dq = dq, rec->m = m, rec->qs = qs, rec->dw = dw, rec->ds = ds, rec->len = len;
     }
@@ -134,16 +229,16 @@ inline void substep(State<T>& s, V3<T> a, V3<T> e, T dt, bool rotate, Record<T>*
 template <typename T>
 void forward_kernel(const T* x, const T* q, const T* v, const T* w, const T* a, const T* e, T* x_out,
                     T* q_out, int64_t n, T dt, int64_t steps, bool rotate) {
-    at::parallel_for(0, n, 2048, [&](int64_t i0, int64_t i1) {
-        for (int64_t i = i0; i < i1; ++i) {
-            State<T> s = start_state(x, q, v, w, i, rotate);
-            const V3<T> ai = load3(a + 3 * i), ei = load3(e + 3 * i);
+    using S = typename Lanes<T>::S;
+    constexpr int64_t W = Lanes<T>::W;
+    at::parallel_for(0, (n + W - 1) / W, 2048 / W, [&](int64_t b0, int64_t b1) {
+        for (int64_t b = b0; b < b1; ++b) {
+            const int64_t i = b * W, count = std::min(W, n - i);
+            State<S> s = start_state<S>(x, q, v, w, i, count, rotate);
+            const V3<S> ai = load3<S>(a, i, count), ei = load3<S>(e, i, count);
             for (int64_t k = 0; k < steps; ++k) substep(s, ai, ei, dt, rotate);
-            store3(x_out + 3 * i, s.x);
-            if (rotate) {
-                T* qo = q_out + 4 * i;
-                qo[0] = s.q.w, qo[1] = s.q.x, qo[2] = s.q.y, qo[3] = s.q.z;
-            }
+            store3(x_out, i, count, s.x);
+            if (rotate) store4(q_out, i, count, s.q);
         }
     });
 }
@@ -152,66 +247,67 @@ template <typename T>
 void backward_kernel(const T* x, const T* q, const T* v, const T* w, const T* a, const T* e,
                      const T* gx_out, const T* gq_out, T* gx0, T* gq0, T* gv0, T* gw0, T* ga0, T* ge0,
                      int64_t n, T dt, int64_t steps, bool rotate) {
+    using S = typename Lanes<T>::S;
+    constexpr int64_t W = Lanes<T>::W;
     const T h = T(0.5) * dt;
-    at::parallel_for(0, n, 2048, [&](int64_t i0, int64_t i1) {
-        Record<T> path[MAX_STEPS];
-        for (int64_t i = i0; i < i1; ++i) {
-            State<T> s = start_state(x, q, v, w, i, rotate);
-            const V3<T> ai = load3(a + 3 * i), ei = load3(e + 3 * i);
+    at::parallel_for(0, (n + W - 1) / W, 2048 / W, [&](int64_t b0, int64_t b1) {
+        std::vector<Record<S>> path(steps);
+        for (int64_t b = b0; b < b1; ++b) {
+            const int64_t i = b * W, count = std::min(W, n - i);
+            State<S> s = start_state<S>(x, q, v, w, i, count, rotate);
+            const V3<S> ai = load3<S>(a, i, count), ei = load3<S>(e, i, count);
             for (int64_t k = 0; k < steps; ++k) substep(s, ai, ei, dt, rotate, &path[k]);
-            V3<T> gx = load3(gx_out + 3 * i), gv{0, 0, 0}, gw{0, 0, 0}, ga{0, 0, 0}, ge{0, 0, 0};
-            Q<T> gq{0, 0, 0, 0};
-            if (rotate) gq = {gq_out[4 * i], gq_out[4 * i + 1], gq_out[4 * i + 2], gq_out[4 * i + 3]};
+            const V3<S> zero{S{}, S{}, S{}};
+            V3<S> gx = load3<S>(gx_out, i, count), gv = zero, gw = zero, ga = zero, ge = zero;
+            Q<S> gq{S{}, S{}, S{}, S{}};
+            if (rotate) gq = load4<S>(gq_out, i, count, T(0));
             for (int64_t k = steps - 1; k >= 0; --k) {
-                const Record<T>& rec = path[k];
-                const State<T>& p = rec.start;
-                const V3<T> x_mid = rec.x_mid, w_mid = rec.w_mid;
+                const Record<S>& rec = path[k];
+                const State<S>& p = rec.start;
+                const V3<S> x_mid = rec.x_mid, w_mid = rec.w_mid;
                 // v' = v + dt a, w' = w + dt e: gv, gw pass through to the step's v, w
                 ga = ga + dt * gv;
                 ge = ge + dt * gw;
-                V3<T> g_wmid{0, 0, 0};
+                V3<S> g_wmid = zero;
                 if (rotate) {
-                    const Q<T>& m = rec.m;
-                    const T len = rec.len;
-                    Q<T> gm;
-                    if (len > T(NORM_EPS)) {
-                        const Q<T> u{m.w / len, m.x / len, m.y / len, m.z / len};
-                        const T c = u.w * gq.w + u.x * gq.x + u.y * gq.y + u.z * gq.z;
-                        gm = {(gq.w - c * u.w) / len, (gq.x - c * u.x) / len, (gq.y - c * u.y) / len,
-                              (gq.z - c * u.z) / len};
-                    } else {
-                        gm = {gq.w / T(NORM_EPS), gq.x / T(NORM_EPS), gq.y / T(NORM_EPS), gq.z / T(NORM_EPS)};
-                    }
-                    const Q<T> gdq = mul(gm, conj(p.q));  // d<g, dq o q>/d dq = g o q*
+                    const Q<S>& m = rec.m;
+                    const S len = rec.len;
+                    // normalize's gradient where |m| > NORM_EPS, else the clamp's (lanes choose)
+                    const Q<S> u{m.w / len, m.x / len, m.y / len, m.z / len};
+                    const S c = u.w * gq.w + u.x * gq.x + u.y * gq.y + u.z * gq.z;
+                    const auto above = len > T(NORM_EPS);
+                    const T eps = T(NORM_EPS);
+                    const Q<S> gm{above ? (gq.w - c * u.w) / len : gq.w / eps,
+                                  above ? (gq.x - c * u.x) / len : gq.x / eps,
+                                  above ? (gq.y - c * u.y) / len : gq.y / eps,
+                                  above ? (gq.z - c * u.z) / len : gq.z / eps};
+                    const Q<S> gdq = mul(gm, conj(p.q));  // d<g, dq o q>/d dq = g o q*
                     gq = mul(conj(rec.dq), gm);           // d<g, dq o q>/d q = dq* o g
-                    const V3<T> gvec{gdq.x, gdq.y, gdq.z}, r = rec.r;
-                    const V3<T> gr = (gdq.w * rec.dw) * r + rec.qs * gvec + (dot(gvec, r) * rec.ds) * r;
+                    const V3<S> gvec{gdq.x, gdq.y, gdq.z}, r = rec.r;
+                    const V3<S> gr = (gdq.w * rec.dw) * r + rec.qs * gvec + (dot(gvec, r) * rec.ds) * r;
                     g_wmid = dt * gr;
                 }
                 // x' = x + dt (v_mid + w_mid x x_mid)
-                const V3<T> g_u2 = dt * gx;
+                const V3<S> g_u2 = dt * gx;
                 g_wmid = g_wmid + cross(x_mid, g_u2);
-                const V3<T> g_xmid = cross(g_u2, w_mid);
+                const V3<S> g_xmid = cross(g_u2, w_mid);
                 // v_mid = v + h a, w_mid = w + h e
                 gv = gv + g_u2;
                 ga = ga + h * g_u2;
                 gw = gw + g_wmid;
                 ge = ge + h * g_wmid;
                 // x_mid = x + h (v + w x x)
-                const V3<T> g_u = h * g_xmid;
+                const V3<S> g_u = h * g_xmid;
                 gx = gx + g_xmid + cross(g_u, p.w);
                 gv = gv + g_u;
                 gw = gw + cross(p.x, g_u);
             }
-            store3(gx0 + 3 * i, gx);
-            store3(gv0 + 3 * i, gv);
-            store3(gw0 + 3 * i, gw);
-            store3(ga0 + 3 * i, ga);
-            store3(ge0 + 3 * i, ge);
-            if (rotate) {
-                T* g = gq0 + 4 * i;
-                g[0] = gq.w, g[1] = gq.x, g[2] = gq.y, g[3] = gq.z;
-            }
+            store3(gx0, i, count, gx);
+            store3(gv0, i, count, gv);
+            store3(gw0, i, count, gw);
+            store3(ga0, i, count, ga);
+            store3(ge0, i, count, ge);
+            if (rotate) store4(gq0, i, count, gq);
         }
     });
 }
