@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from tracegs.physics import fused
-from tracegs.physics.integrate import DynamicsParams, integrate
+from tracegs.physics.integrate import DynamicsParams, integrate, integrate_states
 from tracegs.physics.so3 import quat_normalize
 
 pytestmark = pytest.mark.skipif(fused.EXTENSION.load() is None, reason="the native RK2 did not build here")
@@ -95,3 +95,17 @@ def test_third_order_and_other_schemes_keep_the_pytorch_path():
     assert fused.applies(x, q, DynamicsParams(v, w, a, e), 3)
     assert not fused.applies(x, q, DynamicsParams(v, w, a, e, a, e), 3)  # jerk terms
     assert not fused.applies(x.float(), q, DynamicsParams(v, w, a, e), 3)  # mixed dtypes
+
+
+@pytest.mark.parametrize("method", ["rk2", "euler"])
+def test_integrate_states_is_integrates_positions_and_orientations(method):
+    x, q, *params = particles(40)
+    ours = integrate_states(x, q, DynamicsParams(*params), 0.05, 1 / 59, method=method)
+    reference = integrate(x, q, DynamicsParams(*params), 0.05, 1 / 59, method=method)[:2]
+    for a, b in zip(ours, reference, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    x_only = integrate_states(x, None, DynamicsParams(*params), -0.03, 1 / 59, method=method)
+    assert x_only[1] is None
+    torch.testing.assert_close(
+        x_only[0], integrate(x, None, DynamicsParams(*params), -0.03, 1 / 59, method)[0]
+    )

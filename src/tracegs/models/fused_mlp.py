@@ -136,8 +136,16 @@ def fold_parts(
 ) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
     """A first layer on parts of its input (``encoding.product_of_parts``' arguments) as the fused
     op's ``(x, weight, bias)``: the single-row parts (a time shared by every point) folded into the
-    bias, the others concatenated with their weight columns. ``x`` is None when every part folded."""
-    bias, rows = fold_single_rows(weight, bias, parts)
+    bias, the others concatenated with their weight columns. ``x`` is None when every part folded.
+
+    The fold is a one-row product in float32 also under bf16 autocast: the op takes a float bias,
+    and autocast's casts of the row, the columns and the bias (and their autograd nodes) cost more
+    than the product."""
+    if _autocast_bf16():
+        with torch.autocast("cpu", enabled=False):
+            bias, rows = fold_single_rows(weight, bias, parts)
+    else:
+        bias, rows = fold_single_rows(weight, bias, parts)
     bias = bias.reshape(-1)
     if not rows:
         return None, None, bias

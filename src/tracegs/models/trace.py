@@ -15,7 +15,7 @@ import torch
 from torch import nn
 
 from ..physics.free_body import median_spacing
-from ..physics.integrate import acceleration_consistency, integrate, params_in_world
+from ..physics.integrate import acceleration_consistency, integrate_states, params_in_world
 from ..render import rasterize
 from .colour import CameraColour
 from .deformation import deform_rows, make_deformation_field
@@ -231,7 +231,9 @@ class TraceModel(nn.Module):
         rows = self._moving_rows()  # f_trd moves these; the static Gaussians stay where they are
         x_run, q_run = (x_start, start["quats"]) if rows is None else (x_start[rows], start["quats"][rows])
         params = self.query_dynamics(x_run, query_time)
-        means, quats = integrate(x_run, q_run, params, t - t_prime, self.dt_max, method=stage.integrator)[:2]
+        means, quats = integrate_states(
+            x_run, q_run, params, t - t_prime, self.dt_max, method=stage.integrator
+        )
         losses = {}
         share = 1.0 if rows is None else rows.numel() / x_start.shape[0]  # a mean over all Gaussians
         learns_accelerations = self.cfg.dynamics.order >= 2 and stage.physics_derivation
@@ -241,7 +243,9 @@ class TraceModel(nn.Module):
             with torch.no_grad():  # f_trd once more at t_check, where x_t' is carried there
                 if t_check != t:
                     span = t_check - t_prime
-                    x_check = integrate(x_run, None, params, span, self.dt_max, method=stage.integrator)[0]
+                    x_check = integrate_states(
+                        x_run, None, params, span, self.dt_max, method=stage.integrator
+                    )[0]
                 else:
                     x_check = means
                 later = self.query_dynamics(x_check, t_check, rates=False)  # it reads velocities

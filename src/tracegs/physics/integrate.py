@@ -322,6 +322,24 @@ def integrate(
     return x, q, params
 
 
+def integrate_states(
+    x: torch.Tensor,
+    q: torch.Tensor | None,
+    params: DynamicsParams,
+    dt_total: float,
+    dt_max: float,
+    method: str = "rk2",
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """``integrate``'s ``(x, q)`` alone: on the native RK2's path without the parameters at the end
+    time (a training step reads only where the particles went)."""
+    dt_total = float(dt_total)
+    if dt_total != 0.0 and method == "rk2":
+        n = num_substeps(dt_total, dt_max)
+        if fused.applies(x, q, params, n):
+            return fused.fused_rk2(x, q, params, dt_total / n, n)
+    return integrate(x, q, params, dt_total, dt_max, method)[:2]
+
+
 ParamsFn = Callable[[torch.Tensor, float], DynamicsParams]
 
 
