@@ -15,6 +15,7 @@ N: points, E: input channels, O: a layer's outputs.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 
 import torch
@@ -141,10 +142,7 @@ def fold_parts(
     The fold is a one-row product in float32 also under bf16 autocast: the op takes a float bias,
     and autocast's casts of the row, the columns and the bias (and their autograd nodes) cost more
     than the product."""
-    if _autocast_bf16():
-        with torch.autocast("cpu", enabled=False):
-            bias, rows = fold_single_rows(weight, bias, parts)
-    else:
+    with torch.autocast("cpu", enabled=False) if _autocast_bf16() else contextlib.nullcontext():
         bias, rows = fold_single_rows(weight, bias, parts)
     bias = bias.reshape(-1)
     if not rows:
