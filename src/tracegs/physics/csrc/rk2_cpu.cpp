@@ -35,7 +35,7 @@ constexpr double SMALL_ANGLE = 1e-3;  // physics/so3.py: below it, the Taylor se
 constexpr double NORM_EPS = 1e-12;    // physics/so3.py quat_normalize's clamp
 
 // The lanes a kernel computes with: S (one number, or a vector of them) and its element type T.
-typedef float float16 __attribute__((vector_size(64)));
+typedef float floatx16 __attribute__((vector_size(64)));
 template <typename T>
 struct Lanes {  // one particle at a time
     using S = T;
@@ -43,7 +43,7 @@ struct Lanes {  // one particle at a time
 };
 template <>
 struct Lanes<float> {  // 16 particles at a time
-    using S = float16;
+    using S = floatx16;
     static constexpr int64_t W = 16;
 };
 template <typename S>
@@ -51,7 +51,7 @@ struct Element {
     using T = S;
 };
 template <>
-struct Element<float16> {
+struct Element<floatx16> {
     using T = float;
 };
 template <typename S>
