@@ -312,11 +312,11 @@ def integrate(
     dt_total = float(dt_total)
     if dt_total == 0.0:
         return x, q, params
+    native = _native_rk2(x, q, params, dt_total, dt_max, method)
+    if native is not None:
+        return *native, params_at(params, dt_total)
     n = num_substeps(dt_total, dt_max)
     dt = dt_total / n
-    if method == "rk2" and fused.applies(x, q, params, n):  # (quaternions or positions only)
-        x, q = fused.fused_rk2(x, q, params, dt, n)  # the same sub-steps as one native op
-        return x, q, params_at(params, dt_total)
     for _ in range(n):
         x, q, params = step(x, q, params, dt, method)
     return x, q, params
@@ -332,12 +332,17 @@ def integrate_states(
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """``integrate``'s ``(x, q)`` alone: on the native RK2's path without the parameters at the end
     time (a training step reads only where the particles went)."""
-    dt_total = float(dt_total)
-    if dt_total != 0.0 and method == "rk2":
-        n = num_substeps(dt_total, dt_max)
-        if fused.applies(x, q, params, n):
-            return fused.fused_rk2(x, q, params, dt_total / n, n)
-    return integrate(x, q, params, dt_total, dt_max, method)[:2]
+    native = _native_rk2(x, q, params, float(dt_total), dt_max, method)
+    return native if native is not None else integrate(x, q, params, dt_total, dt_max, method)[:2]
+
+
+def _native_rk2(x, q, params, dt_total: float, dt_max: float, method: str):
+    """``(x, q)`` by the native RK2 (the same sub-steps as one op) where it applies (rk2, quaternions or
+    positions only, a nonzero duration), else None."""
+    if method != "rk2" or dt_total == 0.0:
+        return None
+    n = num_substeps(dt_total, dt_max)
+    return fused.fused_rk2(x, q, params, dt_total / n, n) if fused.applies(x, q, params, n) else None
 
 
 ParamsFn = Callable[[torch.Tensor, float], DynamicsParams]
