@@ -7,9 +7,7 @@
 // whatever the CPU has) whose result is finished in registers: the forward adds the bias and applies
 // the activation before it stores z and h; the backward's input-gradient product applies the
 // previous layer's activation derivative before it stores; the weight-gradient product sums the bias
-// gradient on the way. Each call is one parallel region: the forward takes a tile of rows through all
-// layers, the backward a chunk of rows back through all layers, while those rows are in the core's
-// cache. Values and gradients agree with the PyTorch layers to float rounding
+// gradient on the way. Values and gradients agree with the PyTorch layers to float rounding
 // (tests/models/test_fused_mlp.py). With ``bf16`` (a build for AVX512-BF16) the forward's and the
 // input gradients' products take bf16 operands (rounded to nearest even) with float sums; the
 // weights' gradients stay float.
@@ -37,7 +35,6 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
-#include <functional>
 #include <memory>
 #include <type_traits>
 #include <utility>
@@ -69,8 +66,8 @@ constexpr int VBYTES = 16;  // SSE, NEON
 constexpr int RB = 6, VB = 2, OB = 4, GB = 2;
 #endif
 constexpr int64_t PAD = 16;           // widths padded to a multiple of this (of every vector's lanes)
-constexpr int64_t TILE_ROWS = 32;     // rows per tile of the row-wise products (the forward's parallel task)
-constexpr int64_t CHUNK_ROWS = 256;   // rows per partial sum of the weight gradients (the backward's task; tiles)
+constexpr int64_t TILE_ROWS = 32;     // rows per parallel task of the row-wise products
+constexpr int64_t CHUNK_ROWS = 256;   // rows per partial sum of the weight gradients
 
 template <typename T>
 struct VT;
@@ -323,102 +320,79 @@ __attribute__((noinline)) void product_tiles(const std::vector<P>& pairs, const 
     }
 }
 
-// Chunks [0, chunks) of CHUNK_ROWS rows (n in all) in parallel, each thread a run of them with its
-// share of the rows: at::parallel_for splits by count, and the short last chunk left one thread 2048
-// of 3660 rows and the other 1612.
-template <typename F>
-void parallel_chunks(int64_t chunks, int64_t n, const F& f) {
-    const int64_t threads = std::min<int64_t>(at::get_num_threads(), chunks);
-    const auto first = [&](int64_t j) {  // the first chunk of thread j's share
-        return j == threads ? chunks : std::min(chunks, (j * n / threads + CHUNK_ROWS / 2) / CHUNK_ROWS);
-    };
-    at::parallel_for(0, threads, 1, [&](int64_t j0, int64_t j1) {
-        for (int64_t j = j0; j < j1; ++j) {
-            f(first(j), first(j + 1));
-        }
-    });
+// The row-wise product over all n rows, m (padded) columns, in parallel tiles of rows.
+template <typename P, typename Epi>
+void product(const std::vector<P>& pairs, const typename Sum<P>::type* init, int64_t n, int64_t m, Epi epi) {
+    const int64_t vectors = m / LANES<typename Sum<P>::type>;
+    const int64_t tiles = (n + TILE_ROWS - 1) / TILE_ROWS;
+    at::parallel_for(0, tiles, 1, [&](int64_t t0, int64_t t1) { product_tiles(pairs, init, n, vectors, t0, t1, epi); });
 }
 
-// dW = D^T In and (unless db is null) db = column sums of D, over the n rows of D [n, M] and In [n, K]
-// (padded widths), by chunks of CHUNK_ROWS rows (``chunk`` one, into its partial sums) summed in order
-// (``reduce``): the same result for any thread count; written unpadded: dw [m_out, k_out] (contiguous)
-// and db [m_out].
+// dW = D^T In and (unless db is null) db = column sums of D, over n rows of D [n, M] and In [n, K]
+// (padded widths), by chunks of CHUNK_ROWS rows summed in order; written unpadded: dw [m_out, k_out]
+// (contiguous) and db [m_out].
 template <typename T>
-struct WeightGradient {
-    const T* d;
-    int64_t m;
-    const T* in;
-    int64_t k, n;
-    T *dw, *db;
-    int64_t m_out, k_out;
-    std::unique_ptr<T[]> partial;  // [chunks, m k + m] (every read element is written first)
-
-    WeightGradient(const T* d, int64_t m, const T* in, int64_t k, int64_t n, T* dw, T* db, int64_t m_out, int64_t k_out)
-        : d(d), m(m), in(in), k(k), n(n), dw(dw), db(db), m_out(m_out), k_out(k_out),
-          partial(new T[chunks() * (m * k + m)]) {}
-
-    int64_t chunks() const { return std::max<int64_t>(1, (n + CHUNK_ROWS - 1) / CHUNK_ROWS); }
-
-    void chunk(int64_t c) const {
-        using V = typename VT<T>::v;
-        constexpr int64_t L = LANES<T>;
-        const T *d = this->d, *in = this->in, *db = this->db;  // (locals: kept in registers)
-        const int64_t m = this->m, k = this->k, n = this->n, kv = k / L;
-        T* pw = partial.get() + c * (m * k + m);
-        T* pb = pw + m * k;
-        const int64_t r0 = c * CHUNK_ROWS, r1 = std::min(n, r0 + CHUNK_ROWS);
-        for (int64_t o0 = 0; o0 < m; o0 += OB) {
-            for (int64_t v0 = 0; v0 < kv; v0 += GB) {
-                const int nv = int(std::min<int64_t>(GB, kv - v0));
-                V acc[OB][GB] = {};
-                for (int64_t r = r0; r < r1; ++r) {
-                    V iv[GB];
-                    for (int j = 0; j < GB; ++j) {
-                        iv[j] = j < nv ? loadv(in + r * k + (v0 + j) * L) : V{};
+void weight_gradient(const T* d, int64_t m, const T* in, int64_t k, int64_t n, T* dw, T* db, int64_t m_out,
+                     int64_t k_out) {
+    using V = typename VT<T>::v;
+    constexpr int64_t L = LANES<T>;
+    const int64_t chunks = std::max<int64_t>(1, (n + CHUNK_ROWS - 1) / CHUNK_ROWS);
+    std::unique_ptr<T[]> partial(new T[chunks * (m * k + m)]);  // (every read element is written first)
+    const int64_t kv = k / L;
+    at::parallel_for(0, chunks, 1, [&](int64_t c0, int64_t c1) {
+        for (int64_t c = c0; c < c1; ++c) {
+            T* pw = partial.get() + c * (m * k + m);
+            T* pb = pw + m * k;
+            const int64_t r0 = c * CHUNK_ROWS, r1 = std::min(n, r0 + CHUNK_ROWS);
+            for (int64_t o0 = 0; o0 < m; o0 += OB) {
+                for (int64_t v0 = 0; v0 < kv; v0 += GB) {
+                    const int nv = int(std::min<int64_t>(GB, kv - v0));
+                    V acc[OB][GB] = {};
+                    for (int64_t r = r0; r < r1; ++r) {
+                        V iv[GB];
+                        for (int j = 0; j < GB; ++j) {
+                            iv[j] = j < nv ? loadv(in + r * k + (v0 + j) * L) : V{};
+                        }
+                        for (int o = 0; o < OB; ++o) {
+                            const V dv = broadcast<T>(d[r * m + o0 + o]);
+                            for (int j = 0; j < GB; ++j) {
+                                acc[o][j] += dv * iv[j];
+                            }
+                        }
                     }
                     for (int o = 0; o < OB; ++o) {
-                        const V dv = broadcast<T>(d[r * m + o0 + o]);
-                        for (int j = 0; j < GB; ++j) {
-                            acc[o][j] += dv * iv[j];
+                        for (int j = 0; j < nv; ++j) {
+                            storev(pw + (o0 + o) * k + (v0 + j) * L, acc[o][j]);
                         }
                     }
                 }
-                for (int o = 0; o < OB; ++o) {
-                    for (int j = 0; j < nv; ++j) {
-                        storev(pw + (o0 + o) * k + (v0 + j) * L, acc[o][j]);
-                    }
+            }
+            for (int64_t v = 0; db != nullptr && v < m / L; ++v) {
+                V s{};
+                for (int64_t r = r0; r < r1; ++r) {
+                    s += loadv(d + r * m + v * L);
                 }
+                storev(pb + v * L, s);
             }
         }
-        for (int64_t v = 0; db != nullptr && v < m / L; ++v) {
-            V s{};
-            for (int64_t r = r0; r < r1; ++r) {
-                s += loadv(d + r * m + v * L);
+    });
+    for (int64_t o = 0; o < m_out; ++o) {
+        for (int64_t j = 0; j < k_out; ++j) {
+            T sum = T(0);
+            for (int64_t c = 0; c < chunks; ++c) {
+                sum += partial[c * (m * k + m) + o * k + j];
             }
-            storev(pb + v * L, s);
+            dw[o * k_out + j] = sum;
         }
-    }
-
-    void reduce() {
-        const int64_t count = chunks();
-        for (int64_t o = 0; o < m_out; ++o) {
-            for (int64_t j = 0; j < k_out; ++j) {
-                T sum = T(0);
-                for (int64_t c = 0; c < count; ++c) {
-                    sum += partial[c * (m * k + m) + o * k + j];
-                }
-                dw[o * k_out + j] = sum;
+        if (db != nullptr) {
+            T sum = T(0);
+            for (int64_t c = 0; c < chunks; ++c) {
+                sum += partial[c * (m * k + m) + m * k + o];
             }
-            if (db != nullptr) {
-                T sum = T(0);
-                for (int64_t c = 0; c < count; ++c) {
-                    sum += partial[c * (m * k + m) + m * k + o];
-                }
-                db[o] = sum;
-            }
+            db[o] = sum;
         }
     }
-};
+}
 
 inline at::Tensor as_type(const at::Tensor& t, at::ScalarType type) {
     return t.scalar_type() == type ? t : t.to(type);
@@ -546,28 +520,12 @@ inline uint16_t* bf16_data(at::Tensor& t) {
     return t.defined() ? reinterpret_cast<uint16_t*>(t.data_ptr<at::BFloat16>()) : nullptr;
 }
 
-// A row-wise product with its operands packed: run(t0, t1) computes its tiles [t0, t1) of rows.
-struct TileJob {
-    std::vector<at::Tensor> packed;  // (kept alive for run)
-    std::function<void(int64_t, int64_t)> run;
-};
-
-template <typename P, typename Epi>
-TileJob tile_job(std::vector<at::Tensor> packed, std::vector<P> pairs, const typename Sum<P>::type* init, int64_t n,
-                 int64_t m, Epi epi) {
-    const int64_t vectors = m / LANES<typename Sum<P>::type>;
-    return {std::move(packed), [pairs = std::move(pairs), init, n, vectors, epi](int64_t t0, int64_t t1) mutable {
-                product_tiles(pairs, init, n, vectors, t0, t1, epi);  // (epi only writes through its pointers)
-            }};
-}
-
 // out = a b (+ init) by rows, each result vector to epi: float products, or bf16 ones where ``a_bf16``
-// (a's bf16 copy) is defined, b then packed as pairs (``pack_pairs``) from ``w`` as ``pack`` would;
-// prepared, not run: the forward runs all its layers tile by tile, the backward chunk by chunk.
+// (a's bf16 copy) is defined, b then packed as pairs (``pack_pairs``) from ``w`` as ``pack`` would.
 template <typename T, typename Epi>
-TileJob prepare_product(const at::Tensor& a, const at::Tensor& a_bf16, const at::Tensor& w, bool transpose,
-                        int64_t keep, const T* init, int64_t n, Epi epi, const at::Tensor& a2 = {},
-                        const at::Tensor& a2_bf16 = {}, const at::Tensor& w2 = {}) {
+void rows_product(const at::Tensor& a, const at::Tensor& a_bf16, const at::Tensor& w, bool transpose, int64_t keep,
+                  const T* init, int64_t n, Epi epi, const at::Tensor& a2 = {}, const at::Tensor& a2_bf16 = {},
+                  const at::Tensor& w2 = {}) {
 #if BF16_PRODUCTS
     if constexpr (std::is_same_v<T, float>) {
         if (a_bf16.defined()) {
@@ -578,7 +536,8 @@ TileJob prepare_product(const at::Tensor& a, const at::Tensor& a_bf16, const at:
                 b2 = pack_pairs(w2, transpose);
                 pairs.push_back({pairs_of(a2_bf16), a2.size(1) / 2, pairs_of(b2), b2.size(1), b2.size(0)});
             }
-            return tile_job({b, b2}, std::move(pairs), init, n, b.size(1), epi);
+            product(pairs, init, n, b.size(1), epi);
+            return;
         }
     }
 #endif
@@ -589,22 +548,7 @@ TileJob prepare_product(const at::Tensor& a, const at::Tensor& a_bf16, const at:
         b2 = pack<T>(w2, transpose);
         pairs.push_back({a2.data_ptr<T>(), a2.size(1), b2.data_ptr<T>(), b2.size(1), b2.size(0)});
     }
-    return tile_job({b, b2}, std::move(pairs), init, n, b.size(1), epi);
-}
-
-inline int64_t tiles_of(int64_t n) { return (n + TILE_ROWS - 1) / TILE_ROWS; }
-
-// Row-wise products that depend on each other row by row only (each reads the rows the one before
-// wrote), run tile by tile in one parallel region: a tile goes through them all while its rows are in
-// the core's cache, and the threads meet once, not once a product.
-void run_tiles(const std::vector<TileJob>& jobs, int64_t n) {
-    at::parallel_for(0, tiles_of(n), 1, [&](int64_t t0, int64_t t1) {
-        for (int64_t t = t0; t < t1; ++t) {
-            for (const TileJob& job : jobs) {
-                job.run(t, t + 1);
-            }
-        }
-    });
+    product(pairs, init, n, b.size(1), epi);
 }
 
 template <typename T, typename Fn>
@@ -647,7 +591,6 @@ std::vector<at::Tensor> mlp_forward(
         const at::Tensor input_bf16 = bf16 ? bf16_copy(input) : at::Tensor();
         h = input;
         at::Tensor h_bf16 = input_bf16;
-        std::vector<TileJob> jobs;  // (the layers, run tile by tile below)
         for (int64_t i = 0; i < layers; ++i) {
             TORCH_CHECK(weights[i].size(1) == (i == 0 ? x.size(1) : weights[i - 1].size(0)),
                         "mlp_forward: layer ", i, " does not take the previous layer's width");
@@ -664,19 +607,17 @@ std::vector<at::Tensor> mlp_forward(
             }
             const bool skips = i == skip_layer;  // (layer i also takes x S^T)
             with_activation<scalar_t>(act, [&](auto a) {
-                jobs.push_back(prepare_product<scalar_t>(
-                    h, h_bf16, weights[i], true, -1, b.data_ptr<scalar_t>(), n,
-                    ForwardStore<scalar_t, decltype(a)::value>{z.data_ptr<scalar_t>(), out.data_ptr<scalar_t>(), m,
-                                                               bf16_data(out_bf16)},
-                    skips ? input : at::Tensor(), skips ? input_bf16 : at::Tensor(), skips ? *skip_weight : at::Tensor()));
+                rows_product<scalar_t>(h, h_bf16, weights[i], true, -1, b.data_ptr<scalar_t>(), n,
+                                       ForwardStore<scalar_t, decltype(a)::value>{z.data_ptr<scalar_t>(), out.data_ptr<scalar_t>(), m,
+                                                                                  bf16_data(out_bf16)},
+                                       skips ? input : at::Tensor(), skips ? input_bf16 : at::Tensor(),
+                                       skips ? *skip_weight : at::Tensor());
             });
-            jobs.back().packed.insert(jobs.back().packed.end(), {b, out_bf16});  // (read when the jobs run)
             saved.push_back(z);
             saved.push_back(out);
             h = out;
             h_bf16 = out_bf16;
         }
-        run_tiles(jobs, n);
     });
     saved[0] = h.narrow(0, 0, n).narrow(1, 0, weights.back().size(0));
     return saved;
@@ -729,30 +670,21 @@ std::vector<at::Tensor> mlp_backward(
             });
         }
         at::Tensor dz_bf16 = bf16 ? bf16_copy(dz) : at::Tensor();  // (the input gradients' operand)
-        // Every layer is prepared (its gradients' buffers, its products), then run chunk by chunk of rows
-        // in one parallel region: a chunk's rows go back through all the layers (the weights' partial
-        // sums, the input gradients) while they are in the core's cache, the threads meeting once; the
-        // partial sums are reduced after, in order.
-        std::vector<WeightGradient<scalar_t>> sums;  // (the weights' gradients, the layers' in order)
-        std::vector<std::vector<int64_t>> sums_of(layers);
-        std::vector<std::vector<TileJob>> jobs(layers);  // layer i's row-wise products
-        std::vector<at::Tensor> alive{dz, dz_bf16};      // (read when the jobs run)
-        sums.reserve(layers + 1);
         for (int64_t i = last; i >= 0; --i) {
             const at::Tensor& in = i == 0 ? input : saved[3 + 2 * (i - 1)];  // h_{i-1}, padded
             const int64_t m = dz.size(1), k = in.size(1);
             const int64_t o_real = weights[i].size(0), k_real = weights[i].size(1);
-            grads[i] = at::empty({o_real, k_real}, input.options());
-            grads[layers + i] = at::empty({o_real}, input.options());
-            sums_of[i].push_back(int64_t(sums.size()));
-            sums.emplace_back(dz.data_ptr<scalar_t>(), m, in.data_ptr<scalar_t>(), k, n, grads[i].data_ptr<scalar_t>(),
-                              grads[layers + i].data_ptr<scalar_t>(), o_real, k_real);
+            at::Tensor dw = at::empty({o_real, k_real}, input.options());
+            at::Tensor db = at::empty({o_real}, input.options());
+            weight_gradient<scalar_t>(dz.data_ptr<scalar_t>(), m, in.data_ptr<scalar_t>(), k, n, dw.data_ptr<scalar_t>(),
+                                      db.data_ptr<scalar_t>(), o_real, k_real);
+            grads[i] = as_type(dw, weights[i].scalar_type());
+            grads[layers + i] = as_type(db, weights[i].scalar_type());
             if (i == skip_layer) {  // (its bias is the layer's: db above)
-                grads[2 * layers] = at::empty({skip_weight->size(0), skip_weight->size(1)}, input.options());
-                sums_of[i].push_back(int64_t(sums.size()));
-                sums.emplace_back(dz.data_ptr<scalar_t>(), m, input.data_ptr<scalar_t>(), input.size(1), n,
-                                  grads[2 * layers].data_ptr<scalar_t>(), nullptr, skip_weight->size(0),
-                                  skip_weight->size(1));
+                at::Tensor ds = at::empty({skip_weight->size(0), skip_weight->size(1)}, input.options());
+                weight_gradient<scalar_t>(dz.data_ptr<scalar_t>(), m, input.data_ptr<scalar_t>(), input.size(1), n,
+                                          ds.data_ptr<scalar_t>(), nullptr, ds.size(0), ds.size(1));
+                grads[2 * layers] = as_type(ds, skip_weight->scalar_type());
             }
             // the input gradients read the rows before stop_from only
             const int64_t keep = i == last && stop_from >= 0 ? stop_from : -1;
@@ -766,11 +698,10 @@ std::vector<at::Tensor> mlp_backward(
                 }
                 scalar_t* dxp = dx.data_ptr<scalar_t>();
                 const int64_t ld = dx.size(1);
-                jobs[i].push_back(prepare_product<scalar_t>(dz, dz_bf16, part == 0 ? weights[0] : *skip_weight, false,
-                                                            keep, nullptr, n,
-                                                            [dxp, ld](int64_t r, int64_t c, typename VT<scalar_t>::v v) {
-                                                                storev(dxp + r * ld + c, loadv(dxp + r * ld + c) + v);
-                                                            }));
+                rows_product<scalar_t>(dz, dz_bf16, part == 0 ? weights[0] : *skip_weight, false, keep, nullptr, n,
+                                       [&](int64_t r, int64_t c, typename VT<scalar_t>::v v) {
+                                           storev(dxp + r * ld + c, loadv(dxp + r * ld + c) + v);
+                                       });
             }
             if (i == 0) {
                 break;
@@ -781,37 +712,12 @@ std::vector<at::Tensor> mlp_backward(
             at::Tensor next_bf16 = bf16 ? at::empty({rows, k}, dz_bf16.options()) : at::Tensor();
             const at::Tensor& s = saved[activation == SILU ? 2 + 2 * (i - 1) : 3 + 2 * (i - 1)];
             with_activation<scalar_t>(activation, [&](auto a) {
-                jobs[i].push_back(prepare_product<scalar_t>(
-                    dz, dz_bf16, weights[i], false, keep, nullptr, n,
-                    BackwardStore<scalar_t, decltype(a)::value>{next.data_ptr<scalar_t>(), s.data_ptr<scalar_t>(), k,
-                                                                bf16_data(next_bf16)}));
+                rows_product<scalar_t>(dz, dz_bf16, weights[i], false, keep, nullptr, n,
+                                       BackwardStore<scalar_t, decltype(a)::value>{next.data_ptr<scalar_t>(), s.data_ptr<scalar_t>(), k,
+                                                                                   bf16_data(next_bf16)});
             });
             dz = next;
             dz_bf16 = next_bf16;
-            alive.insert(alive.end(), {dz, dz_bf16});
-        }
-        const int64_t tiles = tiles_of(n), chunk_tiles = CHUNK_ROWS / TILE_ROWS;
-        parallel_chunks(sums[0].chunks(), n, [&](int64_t c0, int64_t c1) {
-            for (int64_t c = c0; c < c1; ++c) {
-                for (int64_t i = last; i >= 0; --i) {
-                    for (const int64_t j : sums_of[i]) {
-                        sums[j].chunk(c);
-                    }
-                    for (const TileJob& job : jobs[i]) {
-                        job.run(c * chunk_tiles, std::min(tiles, (c + 1) * chunk_tiles));
-                    }
-                }
-            }
-        });
-        for (WeightGradient<scalar_t>& sum : sums) {
-            sum.reduce();
-        }
-        for (int64_t i = 0; i < layers; ++i) {
-            grads[i] = as_type(grads[i], weights[i].scalar_type());
-            grads[layers + i] = as_type(grads[layers + i], weights[i].scalar_type());
-        }
-        if (skip_layer >= 0) {
-            grads[2 * layers] = as_type(grads[2 * layers], skip_weight->scalar_type());
         }
     });
     if (wants_x) {
