@@ -315,6 +315,11 @@ def integrate(
     native = _native_rk2(x, q, params, dt_total, dt_max, method)
     if native is not None:
         return *native, params_at(params, dt_total)
+    return _substeps(x, q, params, dt_total, dt_max, method)
+
+
+def _substeps(x, q, params: DynamicsParams, dt_total: float, dt_max: float, method: str):
+    """``integrate``'s PyTorch path: its ``n`` equal steps, one ``step`` each."""
     n = num_substeps(dt_total, dt_max)
     dt = dt_total / n
     for _ in range(n):
@@ -332,14 +337,17 @@ def integrate_states(
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """``integrate``'s ``(x, q)`` alone: on the native RK2's path without the parameters at the end
     time (a training step reads only where the particles went)."""
-    native = _native_rk2(x, q, params, float(dt_total), dt_max, method)
-    return native if native is not None else integrate(x, q, params, dt_total, dt_max, method)[:2]
+    dt_total = float(dt_total)
+    if dt_total == 0.0:
+        return x, q
+    native = _native_rk2(x, q, params, dt_total, dt_max, method)
+    return native if native is not None else _substeps(x, q, params, dt_total, dt_max, method)[:2]
 
 
 def _native_rk2(x, q, params, dt_total: float, dt_max: float, method: str):
     """``(x, q)`` by the native RK2 (the same sub-steps as one op) where it applies (rk2, quaternions or
-    positions only, a nonzero duration), else None."""
-    if method != "rk2" or dt_total == 0.0:
+    positions only; a nonzero duration), else None."""
+    if method != "rk2":
         return None
     n = num_substeps(dt_total, dt_max)
     return fused.fused_rk2(x, q, params, dt_total / n, n) if fused.applies(x, q, params, n) else None

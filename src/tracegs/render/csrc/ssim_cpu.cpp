@@ -88,10 +88,10 @@ void ssim_map(const float* __restrict__ m1, const float* __restrict__ my, const 
     }
 }
 
-typedef float v16 __attribute__((vector_size(64)));
+typedef float floatx16 __attribute__((vector_size(64)));
 
-inline v16 load16(const float* p) {
-    v16 v;
+inline floatx16 load16(const float* p) {
+    floatx16 v;
     std::memcpy(&v, p, sizeof(v));
     return v;
 }
@@ -111,7 +111,7 @@ void filter_full(const float* __restrict__ in, float* __restrict__ tmp, float* _
         for (int j = 0; j < pad; ++j) t[j] = t[pad + wo + j] = 0.0f;
         int j = 0;
         for (; j + 16 <= wo; j += 16) {  // (16 columns at a time: the compiler keeps the row loop scalar)
-            v16 sum = {};
+            floatx16 sum = {};
             for (int i = i_lo; i <= i_hi; ++i) sum += gk[r - i] * load16(in + i * wo + j);
             std::memcpy(t + pad + j, &sum, sizeof(sum));
         }
