@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import warnings
+from pathlib import Path
 
 import pytest
 import torch
@@ -10,6 +14,7 @@ from render_helpers import PARAMS, hard_scene, native_available, rel_err, render
 
 from tracegs.render import native
 from tracegs.render.rendering import resolve_backend
+from tracegs.utils import cpu_flags
 
 CASES = {
     # name: (gaussians, width, height, sh_degree, background)
@@ -74,6 +79,35 @@ def test_gradients_deterministic_across_thread_counts():
     for other in runs[1:]:
         for key in ("image", *("grad_" + p for p in PARAMS), "grad_means2d"):
             assert torch.equal(runs[0][key], other[key]), key
+
+
+NARROWER_BUILD = {"avx512f": ("x86-64-v3", "avx2"), "avx2": ("x86-64", "sse")}
+"""A CPU's narrower vector width to build the rasteriser for: (``TRACEGS_MARCH``, what it has)."""
+
+
+def test_narrower_vector_build_gives_the_same_bits(tmp_path):
+    """The blending runs a tile row as vectors of the build's own width (1 x AVX-512, 2 x AVX2, 4 x SSE):
+    every lane computes the same operations, so a narrower build renders the same bits."""
+    if not native_available():
+        pytest.skip("native extension not available")
+    flags = cpu_flags()
+    narrower = next((NARROWER_BUILD[f] for f in NARROWER_BUILD if f in flags), None)
+    if narrower is None:
+        pytest.skip("not an x86 CPU with AVX2 or AVX-512")
+    march, _ = narrower
+    scene = hard_scene(3000, 70, 52, seed=5, sh_degree=1)
+    torch.save(scene, tmp_path / "scene.pt")
+    script = (
+        "import sys, torch; sys.path.insert(0, sys.argv[1]); from render_helpers import render_with_grads; "
+        "torch.save(render_with_grads(torch.load(sys.argv[2]), 'native'), sys.argv[3])"
+    )
+    env = {**os.environ, "TRACEGS_MARCH": march}
+    args = [sys.executable, "-c", script, str(Path(__file__).parent), str(tmp_path / "scene.pt")]
+    subprocess.run([*args, str(tmp_path / "out.pt")], env=env, check=True, timeout=600)
+    other, here = torch.load(tmp_path / "out.pt"), render_with_grads(scene, "native")
+    assert other["image"].abs().max() > 0
+    for key in ("image", "alpha", "depth", *("grad_" + p for p in PARAMS), "grad_means2d"):
+        assert torch.equal(here[key], other[key]), key
 
 
 def test_build_failure_falls_back_to_reference_with_one_warning(monkeypatch):

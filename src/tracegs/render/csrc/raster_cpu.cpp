@@ -38,20 +38,37 @@ constexpr float kTransmittanceThreshold = 1e-4f;
 constexpr float kBoxSlack = 1e-2f;
 constexpr int kGradStride = 10;  // per intersection: mean2d(2), conic(3), color(3), opacity, depth
 
-// One tile row of 16 pixels as a GCC/clang vector: the compiler maps it onto whatever SIMD the
-// target has (2 x AVX2, 1 x AVX-512, 4 x NEON) and the forward and backward passes run the exact
-// same instructions, so their alpha thresholds agree bit for bit.
-typedef float vf __attribute__((vector_size(kTile * sizeof(float))));
-typedef int32_t vi __attribute__((vector_size(kTile * sizeof(int32_t))));
+// A tile row of 16 pixels as kParts GCC/clang vectors of the target's own width (1 x AVX-512,
+// 2 x AVX2, 4 x SSE or NEON), the blending loops running over the parts one after another: every
+// lane computes the same operations on any target, so the passes agree bit for bit with each other
+// and across builds. (One 16-lane vector on a narrower target was ~3x slower than the split: GCC
+// expands its comparisons and selects lane by lane with branches, and the backward's accumulators
+// spill from AVX2's 16 registers.)
+#if defined(__AVX512F__)
+constexpr int kVectorBytes = 64;
+#elif defined(__AVX__)
+constexpr int kVectorBytes = 32;
+#else
+constexpr int kVectorBytes = 16;  // SSE, NEON
+#endif
+constexpr int kLanes = kVectorBytes / static_cast<int>(sizeof(float));
+constexpr int kParts = kTile / kLanes;
+typedef float vf __attribute__((vector_size(kVectorBytes)));
+typedef int32_t vi __attribute__((vector_size(kVectorBytes)));
 
 inline vf splat(float s) { return vf{} + s; }
 inline vi splati(int32_t s) { return vi{} + s; }
 inline vf select(vi mask, vf a, vf b) { return mask ? a : b; }
 
-// Sum of the 16 lanes, always in the same order (deterministic).
-inline float hsum(vf v) {
-    float s = 0.f;
-    for (int i = 0; i < kTile; ++i) s += v[i];
+// Lane c of a tile row held as parts
+template <typename V>
+inline auto& lane(V (&row)[kParts], int c) {
+    return row[c / kLanes][c % kLanes];
+}
+
+// s plus the lanes of v, always in the same order (deterministic)
+inline float hsum(float s, vf v) {
+    for (int i = 0; i < kLanes; ++i) s += v[i];
     return s;
 }
 
@@ -71,7 +88,9 @@ inline vf exp_neg(vf x) {
     p = p * r + 5.0000001201e-1f;
     p = p * r2 + r + 1.0f;
     const vi bits = (__builtin_convertvector(n, vi) + 127) << 23;
-    return p * reinterpret_cast<const vf&>(bits);
+    vf scale;
+    std::memcpy(&scale, &bits, sizeof(scale));
+    return p * scale;
 }
 
 struct Camera {
@@ -484,17 +503,21 @@ std::vector<at::Tensor> raster_forward(at::Tensor means2d, at::Tensor conics, at
     for (int tile = 0; tile < n_tiles; ++tile) {
         const int x0 = (tile % tiles_x) * kTile, y0 = (tile / tiles_x) * kTile;
         const int rows_in = std::min(kTile, H - y0), cols_in = std::min(kTile, W - x0);
-        vf px;  // pixel-centre x of the 16 columns
-        vi col_in;
-        for (int c = 0; c < kTile; ++c) px[c] = static_cast<float>(x0 + c) + 0.5f, col_in[c] = c < cols_in ? -1 : 0;
+        vf px[kParts] = {};  // pixel-centre x of the 16 columns
+        vi col_in[kParts] = {};
+        for (int c = 0; c < kTile; ++c) {
+            lane(px, c) = static_cast<float>(x0 + c) + 0.5f, lane(col_in, c) = c < cols_in ? -1 : 0;
+        }
         // per row: transmittance, accumulated colour and depth, last blended entry, still-running mask
-        vf T[kTile], cr[kTile], cg[kTile], cb[kTile], cd[kTile];
-        vi last[kTile], live[kTile];
+        vf T[kTile][kParts], cr[kTile][kParts], cg[kTile][kParts], cb[kTile][kParts], cd[kTile][kParts];
+        vi last[kTile][kParts], live[kTile][kParts];
         int n_live = rows_in * cols_in;
         for (int row = 0; row < kTile; ++row) {
-            T[row] = splat(1.f), cr[row] = cg[row] = cb[row] = cd[row] = splat(0.f);
-            last[row] = splati(-1);
-            live[row] = row < rows_in ? col_in : splati(0);
+            for (int p = 0; p < kParts; ++p) {
+                T[row][p] = splat(1.f), cr[row][p] = cg[row][p] = cb[row][p] = cd[row][p] = splat(0.f);
+                last[row][p] = splati(-1);
+                live[row][p] = row < rows_in ? col_in[p] : splati(0);
+            }
         }
         const int64_t s0 = toff[tile], s1 = toff[tile + 1];
         for (int64_t s = s0; s < s1 && n_live > 0; ++s) {
@@ -504,42 +527,44 @@ std::vector<at::Tensor> raster_forward(at::Tensor means2d, at::Tensor conics, at
             const float A = pcon[3 * g], B = pcon[3 * g + 1], C = pcon[3 * g + 2];
             const float o = po[g], z = pz[g];
             const float r = pcol[3 * g], gg = pcol[3 * g + 1], b = pcol[3 * g + 2];
-            const vf dx = pm[2 * g] - px;
-            const vf Adx2 = A * dx * dx;
             int r0, r1;
             load_rows(my, pe[2 * g + 1], y0, H, r0, r1);
             vi n_term = splati(0);
-            for (int row = r0; row <= r1; ++row) {
-                const float dy = my - (static_cast<float>(y0 + row) + 0.5f);
-                const vf sigma = 0.5f * (Adx2 + C * dy * dy) + B * dx * dy;
-                const vf raw = o * exp_neg(-sigma);
-                const vf alpha = select(raw < kMaxAlpha, raw, splat(kMaxAlpha));
-                const vi hit = live[row] & (sigma >= 0.f) & (alpha >= kAlphaThreshold);
-                const vf next_T = T[row] * (1.f - alpha);
-                const vi term = hit & (next_T <= kTransmittanceThreshold);
-                const vi blend = hit & ~term;
-                const vf w = select(blend, alpha * T[row], splat(0.f));
-                cr[row] += w * r;
-                cg[row] += w * gg;
-                cb[row] += w * b;
-                cd[row] += w * z;
-                T[row] = select(blend, next_T, T[row]);
-                last[row] = blend ? k : last[row];
-                live[row] &= ~term;
-                n_term += term;
+            for (int p = 0; p < kParts; ++p) {
+                const vf dx = pm[2 * g] - px[p];
+                const vf Adx2 = A * dx * dx;
+                for (int row = r0; row <= r1; ++row) {
+                    const float dy = my - (static_cast<float>(y0 + row) + 0.5f);
+                    const vf sigma = 0.5f * (Adx2 + C * dy * dy) + B * dx * dy;
+                    const vf raw = o * exp_neg(-sigma);
+                    const vf alpha = select(raw < kMaxAlpha, raw, splat(kMaxAlpha));
+                    const vi hit = live[row][p] & (sigma >= 0.f) & (alpha >= kAlphaThreshold);
+                    const vf next_T = T[row][p] * (1.f - alpha);
+                    const vi term = hit & (next_T <= kTransmittanceThreshold);
+                    const vi blend = hit & ~term;
+                    const vf w = select(blend, alpha * T[row][p], splat(0.f));
+                    cr[row][p] += w * r;
+                    cg[row][p] += w * gg;
+                    cb[row][p] += w * b;
+                    cd[row][p] += w * z;
+                    T[row][p] = select(blend, next_T, T[row][p]);
+                    last[row][p] = blend ? k : last[row][p];
+                    live[row][p] &= ~term;
+                    n_term += term;
+                }
             }
-            for (int c = 0; c < kTile; ++c) n_live += n_term[c];  // term lanes are -1
+            for (int c = 0; c < kLanes; ++c) n_live += n_term[c];  // term lanes are -1
         }
         for (int row = 0; row < rows_in; ++row) {
             for (int c = 0; c < cols_in; ++c) {
                 const int64_t pix = static_cast<int64_t>(y0 + row) * W + x0 + c;
-                oc[3 * pix] = cr[row][c];
-                oc[3 * pix + 1] = cg[row][c];
-                oc[3 * pix + 2] = cb[row][c];
-                od[pix] = cd[row][c];
-                oa[pix] = 1.f - T[row][c];
-                oT[pix] = T[row][c];
-                olast[pix] = last[row][c];
+                oc[3 * pix] = lane(cr[row], c);
+                oc[3 * pix + 1] = lane(cg[row], c);
+                oc[3 * pix + 2] = lane(cb[row], c);
+                od[pix] = lane(cd[row], c);
+                oa[pix] = 1.f - lane(T[row], c);
+                oT[pix] = lane(T[row], c);
+                olast[pix] = lane(last[row], c);
             }
         }
     }
@@ -586,27 +611,29 @@ std::vector<at::Tensor> raster_backward(at::Tensor means2d, at::Tensor conics, a
         const int x0 = (tile % tiles_x) * kTile, y0 = (tile / tiles_x) * kTile;
         const int rows_in = std::min(kTile, H - y0), cols_in = std::min(kTile, W - x0);
         const int64_t s0 = toff[tile];
-        vf px;
-        for (int c = 0; c < kTile; ++c) px[c] = static_cast<float>(x0 + c) + 0.5f;
+        vf px[kParts] = {};
+        for (int c = 0; c < kTile; ++c) lane(px, c) = static_cast<float>(x0 + c) + 0.5f;
         // per row: transmittance (walking back), colour / depth accumulated behind, output grads
-        vf T[kTile], Sr[kTile], Sg[kTile], Sb[kTile], Sd[kTile];
-        vf gr[kTile], gg[kTile], gb[kTile], gd[kTile], gaT[kTile];
-        vi last[kTile];
+        vf T[kTile][kParts], Sr[kTile][kParts], Sg[kTile][kParts], Sb[kTile][kParts], Sd[kTile][kParts];
+        vf gr[kTile][kParts], gg[kTile][kParts], gb[kTile][kParts], gd[kTile][kParts], gaT[kTile][kParts];
+        vi last[kTile][kParts];
         int kmax = -1;
         for (int row = 0; row < kTile; ++row) {
-            T[row] = splat(1.f);
-            Sr[row] = Sg[row] = Sb[row] = Sd[row] = splat(0.f);
-            gr[row] = gg[row] = gb[row] = gd[row] = gaT[row] = splat(0.f);
-            last[row] = splati(-1);
+            for (int p = 0; p < kParts; ++p) {
+                T[row][p] = splat(1.f);
+                Sr[row][p] = Sg[row][p] = Sb[row][p] = Sd[row][p] = splat(0.f);
+                gr[row][p] = gg[row][p] = gb[row][p] = gd[row][p] = gaT[row][p] = splat(0.f);
+                last[row][p] = splati(-1);
+            }
             if (row >= rows_in) continue;
             for (int c = 0; c < cols_in; ++c) {
                 const int64_t pix = static_cast<int64_t>(y0 + row) * W + x0 + c;
-                T[row][c] = pT[pix];
-                last[row][c] = plast[pix];
-                gr[row][c] = gC[3 * pix], gg[row][c] = gC[3 * pix + 1], gb[row][c] = gC[3 * pix + 2];
-                gd[row][c] = gD[pix];
+                lane(T[row], c) = pT[pix];
+                lane(last[row], c) = plast[pix];
+                lane(gr[row], c) = gC[3 * pix], lane(gg[row], c) = gC[3 * pix + 1];
+                lane(gb[row], c) = gC[3 * pix + 2], lane(gd[row], c) = gD[pix];
                 // alpha_out = 1 - T_final, and dT_final/dalpha_k = -T_final / (1 - alpha_k)
-                gaT[row][c] = gA[pix] * pT[pix];
+                lane(gaT[row], c) = gA[pix] * pT[pix];
                 kmax = std::max(kmax, plast[pix]);
             }
         }
@@ -618,49 +645,54 @@ std::vector<at::Tensor> raster_backward(at::Tensor means2d, at::Tensor conics, a
             const float A = pcon[3 * g], B = pcon[3 * g + 1], C = pcon[3 * g + 2];
             const float o = po[g], z = pz[g];
             const float r = pcol[3 * g], gcol = pcol[3 * g + 1], b = pcol[3 * g + 2];
-            const vf dx = pm[2 * g] - px;
-            const vf Adx2 = A * dx * dx;
             int r0, r1;
             load_rows(my, pe[2 * g + 1], y0, H, r0, r1);
-            vf v_mx = splat(0.f), v_my = v_mx, vA = v_mx, vB = v_mx, vC = v_mx;
-            vf v_r = v_mx, v_g = v_mx, v_b = v_mx, v_o = v_mx, v_z = v_mx;
             const vf zero = splat(0.f);
-            for (int row = r0; row <= r1; ++row) {
-                const float dy = my - (static_cast<float>(y0 + row) + 0.5f);
-                const vf sigma = 0.5f * (Adx2 + C * dy * dy) + B * dx * dy;
-                const vf G = exp_neg(-sigma);
-                const vf raw = o * G;
-                const vf alpha = select(raw < kMaxAlpha, raw, splat(kMaxAlpha));
-                const vi hit = (k <= last[row]) & (sigma >= 0.f) & (alpha >= kAlphaThreshold);
-                const vf ra = 1.f / (1.f - alpha);
-                const vf Tk = T[row] * ra;  // transmittance in front of this Gaussian
-                const vf w = select(hit, alpha * Tk, zero);
-                const vf front = r * gr[row] + gcol * gg[row] + b * gb[row] + z * gd[row];
-                const vf behind = Sr[row] * gr[row] + Sg[row] * gg[row] + Sb[row] * gb[row] + Sd[row] * gd[row];
-                const vf v_alpha = Tk * front - behind * ra + gaT[row] * ra;
-                // min(0.99, raw) passes no gradient where it clamps
-                const vi grad_ok = hit & (raw <= kMaxAlpha);
-                const vf v_raw = select(grad_ok, v_alpha, zero);
-                const vf v_sigma = -raw * v_raw;
-                v_r += w * gr[row];
-                v_g += w * gg[row];
-                v_b += w * gb[row];
-                v_z += w * gd[row];
-                v_o += G * v_raw;
-                v_mx += v_sigma * (A * dx + B * dy);
-                v_my += v_sigma * (B * dx + C * dy);
-                vA += 0.5f * v_sigma * dx * dx;
-                vB += v_sigma * dx * dy;
-                vC += 0.5f * v_sigma * dy * dy;
-                Sr[row] += w * r;
-                Sg[row] += w * gcol;
-                Sb[row] += w * b;
-                Sd[row] += w * z;
-                T[row] = select(hit, Tk, T[row]);
+            float* out = buf + s * kGradStride;  // (zeros: each sum runs over the lanes in order)
+            for (int p = 0; p < kParts; ++p) {
+                const vf dx = pm[2 * g] - px[p];
+                const vf Adx2 = A * dx * dx;
+                vf v_mx = zero, v_my = zero, vA = zero, vB = zero, vC = zero;
+                vf v_r = zero, v_g = zero, v_b = zero, v_o = zero, v_z = zero;
+                for (int row = r0; row <= r1; ++row) {
+                    const float dy = my - (static_cast<float>(y0 + row) + 0.5f);
+                    const vf sigma = 0.5f * (Adx2 + C * dy * dy) + B * dx * dy;
+                    const vf G = exp_neg(-sigma);
+                    const vf raw = o * G;
+                    const vf alpha = select(raw < kMaxAlpha, raw, splat(kMaxAlpha));
+                    const vi hit = (k <= last[row][p]) & (sigma >= 0.f) & (alpha >= kAlphaThreshold);
+                    const vf ra = 1.f / (1.f - alpha);
+                    const vf Tk = T[row][p] * ra;  // transmittance in front of this Gaussian
+                    const vf w = select(hit, alpha * Tk, zero);
+                    const vf front = r * gr[row][p] + gcol * gg[row][p] + b * gb[row][p] + z * gd[row][p];
+                    const vf behind = Sr[row][p] * gr[row][p] + Sg[row][p] * gg[row][p] +
+                                      Sb[row][p] * gb[row][p] + Sd[row][p] * gd[row][p];
+                    const vf v_alpha = Tk * front - behind * ra + gaT[row][p] * ra;
+                    // min(0.99, raw) passes no gradient where it clamps
+                    const vi grad_ok = hit & (raw <= kMaxAlpha);
+                    const vf v_raw = select(grad_ok, v_alpha, zero);
+                    const vf v_sigma = -raw * v_raw;
+                    v_r += w * gr[row][p];
+                    v_g += w * gg[row][p];
+                    v_b += w * gb[row][p];
+                    v_z += w * gd[row][p];
+                    v_o += G * v_raw;
+                    v_mx += v_sigma * (A * dx + B * dy);
+                    v_my += v_sigma * (B * dx + C * dy);
+                    vA += 0.5f * v_sigma * dx * dx;
+                    vB += v_sigma * dx * dy;
+                    vC += 0.5f * v_sigma * dy * dy;
+                    Sr[row][p] += w * r;
+                    Sg[row][p] += w * gcol;
+                    Sb[row][p] += w * b;
+                    Sd[row][p] += w * z;
+                    T[row][p] = select(hit, Tk, T[row][p]);
+                }
+                out[0] = hsum(out[0], v_mx), out[1] = hsum(out[1], v_my), out[2] = hsum(out[2], vA);
+                out[3] = hsum(out[3], vB), out[4] = hsum(out[4], vC), out[5] = hsum(out[5], v_r);
+                out[6] = hsum(out[6], v_g), out[7] = hsum(out[7], v_b), out[8] = hsum(out[8], v_o);
+                out[9] = hsum(out[9], v_z);
             }
-            float* out = buf + s * kGradStride;
-            out[0] = hsum(v_mx), out[1] = hsum(v_my), out[2] = hsum(vA), out[3] = hsum(vB), out[4] = hsum(vC);
-            out[5] = hsum(v_r), out[6] = hsum(v_g), out[7] = hsum(v_b), out[8] = hsum(v_o), out[9] = hsum(v_z);
         }
     }
 
