@@ -37,6 +37,7 @@ import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils.flop_counter import FlopCounterMode
 
+from tracegs.cpp import ISA_ENVIRONMENTS
 from tracegs.models import deformation, encoding, fused_mlp
 from tracegs.physics import fused
 from tracegs.results import make_record, write_record
@@ -193,16 +194,7 @@ def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]
     ]
 
 
-ISAS = {
-    "native": {},
-    # an AVX2-only CPU's code paths on this one: ATen's kernels, oneDNN, MKL and the extensions
-    "avx2": {
-        "ATEN_CPU_CAPABILITY": "avx2",
-        "DNNL_MAX_CPU_ISA": "AVX2",
-        "MKL_ENABLE_INSTRUCTIONS": "AVX2",
-        "TRACEGS_MARCH": "x86-64-v3",
-    },
-}
+ISAS = ISA_ENVIRONMENTS
 """Instruction sets to measure with (``--isa``): each in a process of its own with these variables."""
 
 

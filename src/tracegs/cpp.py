@@ -46,6 +46,20 @@ def march() -> str:
     return os.environ.get("TRACEGS_MARCH", "native")
 
 
+ISA_ENVIRONMENTS = {
+    "native": {},
+    "avx2": {
+        "ATEN_CPU_CAPABILITY": "avx2",
+        "DNNL_MAX_CPU_ISA": "AVX2",
+        "MKL_ENABLE_INSTRUCTIONS": "AVX2",
+        "TRACEGS_MARCH": "x86-64-v3",
+    },
+}
+"""Environment variables that hold a process to an instruction set, for benchmarks (``--isa``): this
+CPU's own, or an AVX2-only CPU's code paths (ATen's kernels, oneDNN, MKL and the extensions, built
+for x86-64-v3) as an AVX2 laptop runs them. They act at start-up: set them for a new process."""
+
+
 def cpu_tag() -> str:
     """Short hash of the CPU model and instruction-set flags."""
     info = platform.machine() + platform.processor()

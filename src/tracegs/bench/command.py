@@ -9,7 +9,7 @@ def bench_command(a):
     """The records of the benchmark that ``a`` (the flags of `tracegs bench`) names; each goes to
     ``a.json`` when given."""
     if a.what == "raster":
-        records = run_raster_bench(json_path=a.json, device=a.device)
+        records = run_raster_bench(json_path=a.json, device=a.device, isas=a.isa)
     elif a.what == "fields":
         records = run_field_bench(json_path=a.json)
     else:

@@ -1,18 +1,22 @@
 """Rasteriser speed benchmark: every available backend on the same random scenes
 (``render/random_scene.py``), side by side.
 
-``run_raster_bench()`` (CLI: ``tracegs bench raster [--json FILE]``) times forward and forward +
-backward of :func:`tracegs.render.rasterize` for each backend and workload; with ``json_path`` it
-writes a results record (``tracegs.results``) there.
+``run_raster_bench()`` (CLI: ``tracegs bench raster [--isa native avx2] [--json FILE]``) times forward
+and forward + backward of :func:`tracegs.render.rasterize` for each backend and workload, natively or
+held to other instruction sets (``cpp.ISA_ENVIRONMENTS``, each in a process of its own); with
+``json_path`` it writes a results record (``tracegs.results``) there.
 """
 
 from __future__ import annotations
 
 import ctypes
 import gc
+import json
 import math
+import os
 import resource
 import statistics
+import subprocess
 import sys
 import threading
 import time
@@ -20,6 +24,7 @@ from pathlib import Path
 
 import torch
 
+from ..cpp import ISA_ENVIRONMENTS
 from ..render.random_scene import random_scene
 from ..render.rendering import available_backends, rasterize
 from ..results import make_record, write_record
@@ -133,6 +138,7 @@ def run_raster_bench(
     repeats: int = 7,
     backends: list[str] | None = None,
     device: str = "cpu",
+    isas: tuple[str, ...] = ("native",),
 ) -> list[dict]:
     """Time forward and forward + backward of every backend on every (width, count) workload.
 
@@ -140,9 +146,23 @@ def run_raster_bench(
     is slow (under ~10 s per workload). ``peak_mb`` is the peak resident memory that one forward +
     backward adds on top of what the process held before it (freed heap memory is returned to
     the OS first, glibc only; sampled every ms); on CUDA, the peak that PyTorch's allocator adds.
-    ``device``: where the Gaussians live ('auto', 'cpu' or 'cuda'). Returns one row per backend and
+    ``device``: where the Gaussians live ('auto', 'cpu' or 'cuda'). ``isas``: instruction sets
+    (``cpp.ISA_ENVIRONMENTS``) other than ``("native",)`` run each in a child process, the native
+    backend only beside this CPU's own (rows with an ``isa``). Returns one row per backend and
     workload.
     """
+    if tuple(isas) != ("native",):
+        unknown = set(isas) - set(ISA_ENVIRONMENTS)
+        if unknown:
+            raise ValueError(f"--isa: unknown {sorted(unknown)}; choose from {list(ISA_ENVIRONMENTS)}")
+        records = []
+        for isa in isas:
+            args = dict(widths=widths, counts=counts, repeats=repeats, device=device)
+            args["backends"] = backends if isa == "native" else ["native"]
+            records += [{"isa": isa, **r} for r in _records_of_child(isa, args)]
+        if json_path is not None:
+            _write(records, json_path, resolve_device(device), isas)
+        return records
     device = resolve_device(device)
     backends = list(backends) if backends is not None else available_backends(device)
     records = []
@@ -171,24 +191,58 @@ def run_raster_bench(
                 )
 
     if json_path is not None:
-        rows = _with_speedups(records)
-        command = f"tracegs bench raster --device {device.type} --json {json_path}"
-        title = f"Rasteriser forward / forward + backward ({device.type})"
-        columns = ["backend", "image", "gaussians", "ms_forward", "ms_forward_backward", "peak_mb"]
-        columns += ["speed-up fwd", "speed-up fwd+bwd"]
-        write_record(
-            json_path, make_record(f"raster-{device.type}", rows, command, title=title, columns=columns)
-        )
+        _write(records, json_path, device, isas)
     return records
+
+
+def _records_of_child(isa: str, args: dict) -> list[dict]:
+    """``run_raster_bench(**args)``'s rows from a new process held to ``isa`` (its variables act at
+    start-up, and the extensions load once per process)."""
+    code = (
+        "import json, sys; from tracegs.bench.raster import run_raster_bench; "
+        "print(json.dumps(run_raster_bench(**json.loads(sys.argv[1]))))"
+    )
+    child = subprocess.run(
+        [sys.executable, "-c", code, json.dumps(args)],
+        env={**os.environ, **ISA_ENVIRONMENTS[isa]},
+        capture_output=True,
+        text=True,
+    )
+    if child.returncode != 0:
+        raise RuntimeError(f"tracegs bench raster (--isa {isa}) failed:\n{child.stderr[-2000:]}")
+    print(child.stdout.rsplit("\n", 2)[0], flush=True)  # (its progress lines)
+    return json.loads(child.stdout.strip().splitlines()[-1])
+
+
+def _write(records: list[dict], json_path: str | Path, device: torch.device, isas: tuple[str, ...]) -> None:
+    rows = _with_speedups(records)
+    isa_flag = "" if tuple(isas) == ("native",) else f" --isa {' '.join(isas)}"
+    command = f"tracegs bench raster --device {device.type}{isa_flag} --json {json_path}"
+    title = f"Rasteriser forward / forward + backward ({device.type})"
+    columns = ["isa"] if "isa" in records[0] else []
+    columns += ["backend", "image", "gaussians", "ms_forward", "ms_forward_backward", "peak_mb"]
+    columns += ["speed-up fwd", "speed-up fwd+bwd", "threads"]
+    notes = (
+        "Random scenes of render/random_scene.py (RGB colours), one camera. Median of the repeats after one "
+        "warm-up (the reference: fewer when slow); speed-up: the reference's time over the backend's at the "
+        "same workload and instruction set; peak_mb: the resident memory one forward + backward adds."
+    )
+    if "isa" in records[0]:
+        notes += (
+            " isa avx2: a process held to an AVX2-only CPU's code paths (ATen, oneDNN and MKL limited to AVX2, "
+            "the extensions built for x86-64-v3), the native rasteriser only."
+        )
+    record = make_record(f"raster-{device.type}", rows, command, title=title, columns=columns, notes=notes)
+    write_record(json_path, record)
 
 
 def _with_speedups(records: list[dict]) -> list[dict]:
     """The rows with the image size and each backend's speed-up over the reference at its workload."""
     rows = []
-    by_key = {(r["backend"], r["width"], r["gaussians"]): r for r in records}
+    by_key = {(r.get("isa"), r["backend"], r["width"], r["gaussians"]): r for r in records}
     for r in records:
         row = dict(r)
-        ref = by_key.get(("reference", r["width"], r["gaussians"]))
+        ref = by_key.get((r.get("isa"), "reference", r["width"], r["gaussians"]))
         if r["backend"] != "reference" and ref is not None:
             row["speed-up fwd"] = f"{ref['ms_forward'] / r['ms_forward']:.0f}x"
             row["speed-up fwd+bwd"] = f"{ref['ms_forward_backward'] / r['ms_forward_backward']:.0f}x"

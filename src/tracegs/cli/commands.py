@@ -296,6 +296,10 @@ class Bench:
     """Train nothing: tabulate the finished runs of these scenes and variants, skip the others."""
     device: str = "auto"
     """auto, cpu or cuda: where `raster` renders and `methods` / `ablations` train (auto: CUDA if present)."""
+    isa: tuple[Literal["native", "avx2"], ...] = ("native",)
+    """Instruction sets `raster` measures the CPU backends with, each in a process of its own: this CPU's
+    (native), and avx2: held to an AVX2-only CPU's code paths (ATen, oneDNN, MKL, extensions built for
+    x86-64-v3), as an AVX2 laptop runs; its rows time the native rasteriser only."""
     validation: float | None = None
     """Choose settings without the test splits: train on this fraction of the training span (e.g. 0.8)
     and score the training cameras' later frames (methods and ablations)."""

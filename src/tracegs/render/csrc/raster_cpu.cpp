@@ -41,7 +41,7 @@ constexpr int kGradStride = 10;  // per intersection: mean2d(2), conic(3), color
 // A tile row of 16 pixels as kParts GCC/clang vectors of the target's own width (1 x AVX-512,
 // 2 x AVX2, 4 x SSE or NEON), the blending loops running over the parts one after another: every
 // lane computes the same operations on any target, so the passes agree bit for bit with each other
-// and across builds. (One 16-lane vector on a narrower target was ~3x slower than the split: GCC
+// and across builds. (One 16-lane vector on AVX2 was ~2.6x slower than the split: GCC
 // expands its comparisons and selects lane by lane with branches, and the backward's accumulators
 // spill from AVX2's 16 registers.)
 #if defined(__AVX512F__)

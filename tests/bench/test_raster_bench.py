@@ -1,0 +1,35 @@
+"""`tracegs bench raster --isa native avx2`: each instruction set's rows from a process of its own."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from tracegs.bench.raster import run_raster_bench
+from tracegs.render.native import is_available as native_available
+from tracegs.utils import cpu_flags
+
+
+def test_avx2_rows_come_from_a_child_held_to_avx2(tmp_path):
+    if not native_available() or "avx2" not in cpu_flags():
+        pytest.skip("needs the native rasteriser on a CPU with AVX2")
+    path = tmp_path / "raster.json"
+    rows = run_raster_bench(
+        path, widths=(48,), counts=(300,), repeats=1, isas=("native", "avx2"), device="cpu"
+    )
+    assert [(r["isa"], r["backend"]) for r in rows] == [
+        ("native", "native"),
+        ("native", "reference"),
+        ("avx2", "native"),
+    ]
+    assert all(r["ms_forward_backward"] > 0 for r in rows)
+    record = json.loads(path.read_text())
+    assert record["columns"][0] == "isa" and "--isa native avx2" in record["command"]
+    speedups = {r["isa"]: r.get("speed-up fwd+bwd") for r in record["rows"] if r["backend"] == "native"}
+    assert speedups["native"] is not None and speedups["avx2"] is None  # (no AVX2 reference row)
+
+
+def test_an_unknown_isa_is_named():
+    with pytest.raises(ValueError, match="sse9"):
+        run_raster_bench(None, widths=(48,), counts=(10,), repeats=1, isas=("native", "sse9"), device="cpu")
