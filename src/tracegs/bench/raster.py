@@ -215,22 +215,35 @@ def _records_of_child(isa: str, args: dict) -> list[dict]:
 
 
 def _write(records: list[dict], json_path: str | Path, device: torch.device, isas: tuple[str, ...]) -> None:
-    rows = _with_speedups(records)
-    isa_flag = "" if tuple(isas) == ("native",) else f" --isa {' '.join(isas)}"
+    """The record: a row per backend and workload of the first instruction set, the others' times as
+    columns beside them (``avx2_ms_forward``, ...)."""
+    isas = tuple(isas)
+    first = [r for r in records if r.get("isa", isas[0]) == isas[0]]
+    rows = _with_speedups(first)
+    extra = []
+    for isa in isas[1:]:
+        extra += [f"{isa}_ms_forward", f"{isa}_ms_forward_backward"]
+        times = {(r["backend"], r["width"], r["gaussians"]): r for r in records if r.get("isa") == isa}
+        for row in rows:
+            other = times.get((row["backend"], row["width"], row["gaussians"]))
+            if other is not None:
+                row[f"{isa}_ms_forward"] = other["ms_forward"]
+                row[f"{isa}_ms_forward_backward"] = other["ms_forward_backward"]
+    isa_flag = "" if isas == ("native",) else f" --isa {' '.join(isas)}"
     command = f"tracegs bench raster --device {device.type}{isa_flag} --json {json_path}"
     title = f"Rasteriser forward / forward + backward ({device.type})"
-    columns = ["isa"] if "isa" in records[0] else []
-    columns += ["backend", "image", "gaussians", "ms_forward", "ms_forward_backward", "peak_mb"]
+    columns = ["backend", "image", "gaussians", "ms_forward", "ms_forward_backward", *extra, "peak_mb"]
     columns += ["speed-up fwd", "speed-up fwd+bwd", "threads"]
     notes = (
         "Random scenes of render/random_scene.py (RGB colours), one camera. Median of the repeats after one "
         "warm-up (the reference: fewer when slow); speed-up: the reference's time over the backend's at the "
-        "same workload and instruction set; peak_mb: the resident memory one forward + backward adds."
+        "same workload; peak_mb: the resident memory one forward + backward adds."
     )
-    if "isa" in records[0]:
+    if isas != ("native",):
         notes += (
-            " isa avx2: a process held to an AVX2-only CPU's code paths (ATen, oneDNN and MKL limited to AVX2, "
-            "the extensions built for x86-64-v3), the native rasteriser only."
+            f" Instruction sets {', '.join(isas)}, each in a process of its own; the first gives the rows. "
+            "avx2: held to an AVX2-only CPU's code paths (ATen, oneDNN and MKL limited to AVX2, the extensions "
+            "built for x86-64-v3), the native rasteriser only."
         )
     record = make_record(f"raster-{device.type}", rows, command, title=title, columns=columns, notes=notes)
     write_record(json_path, record)
