@@ -60,11 +60,8 @@ inline vf splat(float s) { return vf{} + s; }
 inline vi splati(int32_t s) { return vi{} + s; }
 inline vf select(vi mask, vf a, vf b) { return mask ? a : b; }
 
-// Lane c of a tile row held as parts
-template <typename V>
-inline auto& lane(V (&row)[kParts], int c) {
-    return row[c / kLanes][c % kLanes];
-}
+// Column c of a tile row is lane c % kLanes of part c / kLanes (subscripted in place: clang binds no
+// reference to a vector's element)
 
 // s plus the lanes of v, always in the same order (deterministic)
 inline float hsum(float s, vf v) {
@@ -506,7 +503,8 @@ std::vector<at::Tensor> raster_forward(at::Tensor means2d, at::Tensor conics, at
         vf px[kParts] = {};  // pixel-centre x of the 16 columns
         vi col_in[kParts] = {};
         for (int c = 0; c < kTile; ++c) {
-            lane(px, c) = static_cast<float>(x0 + c) + 0.5f, lane(col_in, c) = c < cols_in ? -1 : 0;
+            const int p = c / kLanes, l = c % kLanes;
+            px[p][l] = static_cast<float>(x0 + c) + 0.5f, col_in[p][l] = c < cols_in ? -1 : 0;
         }
         // per row: transmittance, accumulated colour and depth, last blended entry, still-running mask
         vf T[kTile][kParts], cr[kTile][kParts], cg[kTile][kParts], cb[kTile][kParts], cd[kTile][kParts];
@@ -558,13 +556,14 @@ std::vector<at::Tensor> raster_forward(at::Tensor means2d, at::Tensor conics, at
         for (int row = 0; row < rows_in; ++row) {
             for (int c = 0; c < cols_in; ++c) {
                 const int64_t pix = static_cast<int64_t>(y0 + row) * W + x0 + c;
-                oc[3 * pix] = lane(cr[row], c);
-                oc[3 * pix + 1] = lane(cg[row], c);
-                oc[3 * pix + 2] = lane(cb[row], c);
-                od[pix] = lane(cd[row], c);
-                oa[pix] = 1.f - lane(T[row], c);
-                oT[pix] = lane(T[row], c);
-                olast[pix] = lane(last[row], c);
+                const int p = c / kLanes, l = c % kLanes;
+                oc[3 * pix] = cr[row][p][l];
+                oc[3 * pix + 1] = cg[row][p][l];
+                oc[3 * pix + 2] = cb[row][p][l];
+                od[pix] = cd[row][p][l];
+                oa[pix] = 1.f - T[row][p][l];
+                oT[pix] = T[row][p][l];
+                olast[pix] = last[row][p][l];
             }
         }
     }
@@ -612,7 +611,7 @@ std::vector<at::Tensor> raster_backward(at::Tensor means2d, at::Tensor conics, a
         const int rows_in = std::min(kTile, H - y0), cols_in = std::min(kTile, W - x0);
         const int64_t s0 = toff[tile];
         vf px[kParts] = {};
-        for (int c = 0; c < kTile; ++c) lane(px, c) = static_cast<float>(x0 + c) + 0.5f;
+        for (int c = 0; c < kTile; ++c) px[c / kLanes][c % kLanes] = static_cast<float>(x0 + c) + 0.5f;
         // per row: transmittance (walking back), colour / depth accumulated behind, output grads
         vf T[kTile][kParts], Sr[kTile][kParts], Sg[kTile][kParts], Sb[kTile][kParts], Sd[kTile][kParts];
         vf gr[kTile][kParts], gg[kTile][kParts], gb[kTile][kParts], gd[kTile][kParts], gaT[kTile][kParts];
@@ -628,12 +627,13 @@ std::vector<at::Tensor> raster_backward(at::Tensor means2d, at::Tensor conics, a
             if (row >= rows_in) continue;
             for (int c = 0; c < cols_in; ++c) {
                 const int64_t pix = static_cast<int64_t>(y0 + row) * W + x0 + c;
-                lane(T[row], c) = pT[pix];
-                lane(last[row], c) = plast[pix];
-                lane(gr[row], c) = gC[3 * pix], lane(gg[row], c) = gC[3 * pix + 1];
-                lane(gb[row], c) = gC[3 * pix + 2], lane(gd[row], c) = gD[pix];
+                const int p = c / kLanes, l = c % kLanes;
+                T[row][p][l] = pT[pix];
+                last[row][p][l] = plast[pix];
+                gr[row][p][l] = gC[3 * pix], gg[row][p][l] = gC[3 * pix + 1], gb[row][p][l] = gC[3 * pix + 2];
+                gd[row][p][l] = gD[pix];
                 // alpha_out = 1 - T_final, and dT_final/dalpha_k = -T_final / (1 - alpha_k)
-                lane(gaT[row], c) = gA[pix] * pT[pix];
+                gaT[row][p][l] = gA[pix] * pT[pix];
                 kmax = std::max(kmax, plast[pix]);
             }
         }
