@@ -11,7 +11,7 @@ from tracegs.render.native import is_available as native_available
 from tracegs.utils import cpu_flags
 
 
-def test_avx2_rows_come_from_a_child_held_to_avx2(tmp_path):
+def test_the_avx2_rows_run_in_a_child_and_sit_beside_the_native_ones(tmp_path):
     if not native_available() or "avx2" not in cpu_flags():
         pytest.skip("needs the native rasteriser on a CPU with AVX2")
     path = tmp_path / "raster.json"

@@ -155,6 +155,8 @@ def run_raster_bench(
         unknown = set(isas) - set(ISA_ENVIRONMENTS)
         if unknown:
             raise ValueError(f"--isa: unknown {sorted(unknown)}; choose from {list(ISA_ENVIRONMENTS)}")
+        if resolve_device(device).type != "cpu":
+            raise ValueError("--isa measures the CPU backends: add --device cpu")
         records = []
         for isa in isas:
             args = dict(widths=widths, counts=counts, repeats=repeats, device=device)
@@ -252,10 +254,10 @@ def _write(records: list[dict], json_path: str | Path, device: torch.device, isa
 def _with_speedups(records: list[dict]) -> list[dict]:
     """The rows with the image size and each backend's speed-up over the reference at its workload."""
     rows = []
-    by_key = {(r.get("isa"), r["backend"], r["width"], r["gaussians"]): r for r in records}
+    by_key = {(r["backend"], r["width"], r["gaussians"]): r for r in records}
     for r in records:
         row = dict(r)
-        ref = by_key.get((r.get("isa"), "reference", r["width"], r["gaussians"]))
+        ref = by_key.get(("reference", r["width"], r["gaussians"]))
         if r["backend"] != "reference" and ref is not None:
             row["speed-up fwd"] = f"{ref['ms_forward'] / r['ms_forward']:.0f}x"
             row["speed-up fwd+bwd"] = f"{ref['ms_forward_backward'] / r['ms_forward_backward']:.0f}x"
