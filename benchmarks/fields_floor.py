@@ -194,10 +194,6 @@ def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]
     ]
 
 
-ISAS = ISA_ENVIRONMENTS
-"""Instruction sets to measure with (``--isa``): each in a process of its own with these variables."""
-
-
 def measure_run(run: Path, fields: list[str]) -> list[dict]:
     """The rows of every dtype of ``fields`` and 1 and 2 threads for the run's model."""
     model = load_run(run, "cpu").model
@@ -221,7 +217,7 @@ def main() -> None:
         help="the fields' dtype (rows for each): the run's (as it loads on this CPU), bf16, fp32",
     )  # fmt: skip
     ap.add_argument(
-        "--isa", choices=tuple(ISAS), nargs="+", default=["native"],
+        "--isa", choices=tuple(ISA_ENVIRONMENTS), nargs="+", default=["native"],
         help="instruction sets (rows for each): this CPU's, or AVX2 only (as an AVX2 laptop runs; float32)",
     )  # fmt: skip
     ap.add_argument("--rows-only", action="store_true", help=argparse.SUPPRESS)  # (a child's JSON rows)
@@ -235,7 +231,9 @@ def main() -> None:
         # an AVX2-only CPU runs the fields in float32 (bf16 without hardware dot products is ~100x slower)
         fields = ["fp32"] if isa == "avx2" else args.fields
         command = [sys.executable, __file__, "--run", str(args.run), "--fields", *fields, "--rows-only"]
-        child = subprocess.run(command, env={**os.environ, **ISAS[isa]}, capture_output=True, text=True)
+        child = subprocess.run(
+            command, env={**os.environ, **ISA_ENVIRONMENTS[isa]}, capture_output=True, text=True
+        )
         if child.returncode != 0:
             raise SystemExit(f"fields_floor ({isa}) failed:\n{child.stderr}")
         rows += [{"isa": isa, **row} for row in json.loads(child.stdout.strip().splitlines()[-1])]
