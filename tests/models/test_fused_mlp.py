@@ -147,6 +147,47 @@ def test_stopped_outputs_train_the_weights_but_not_the_input():
     assert float(weights[1].grad[2:].abs().max()) > 0 and float(weights[1].grad[:2].abs().max()) == 0.0
 
 
+def test_time_row_and_scaled_output_groups_match_their_layers_and_finite_differences():
+    """The first and the skip layer on [x, a row shared by every point] with their whole weights (the
+    row's product folded into the biases), and the output in groups with the last columns as
+    r |r| / scale: equal to the PyTorch layers on the concatenation, gradients to finite differences."""
+    g = torch.Generator().manual_seed(0)
+
+    def param(*shape):
+        return (0.5 * torch.randn(*shape, generator=g, dtype=torch.float64)).requires_grad_()
+
+    ex, et, n = 5, 3, 7
+    weights = [param(9, ex + et), param(6, ex + et + 9), param(5, 6)]  # (layer 1: [encoding, h])
+    biases = [param(9), param(6), param(5)]
+    x, row = param(n, ex), torch.randn(1, et, generator=g, dtype=torch.float64)
+
+    def fused(x, *layers):
+        return fused_mlp.fused_mlp(
+            x, list(layers[:3]), list(layers[3:]), "silu", skip=(1, None), time_row=row,
+            groups=(2, 3), scaled_from=2, scale=1.7,
+        )  # fmt: skip
+
+    def layers(x, *layers):
+        w, b = layers[:3], layers[3:]
+        encoded = torch.cat([x, row.expand(n, et)], dim=1)
+        h = torch.nn.functional.silu(encoded @ w[0].T + b[0])
+        h = torch.nn.functional.silu(torch.cat([encoded, h], dim=1) @ w[1].T + b[1])
+        out = h @ w[2].T + b[2]
+        return out[:, :2], out[:, 2:] * out[:, 2:].abs() / 1.7
+
+    inputs = (x, *weights, *biases)
+    ours, reference = fused(*inputs), layers(*inputs)
+    assert [tuple(o.shape) for o in ours] == [(n, 2), (n, 3)]
+    probe = [torch.randn(o.shape, generator=g, dtype=torch.float64) for o in reference]
+    for a, b in zip(
+        [*ours, *torch.autograd.grad(ours, inputs, probe)],
+        [*reference, *torch.autograd.grad(reference, inputs, probe)],
+        strict=True,
+    ):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
+    assert torch.autograd.gradcheck(fused, inputs)
+
+
 def test_where_the_fused_path_applies():
     x = torch.randn(10, 3)
     assert fused_mlp.applies(x)

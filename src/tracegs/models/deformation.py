@@ -47,6 +47,10 @@ class DeformationConfig:
     """Grid and decoder of the "hexplane" kind."""
 
 
+HEAD_COLUMNS = (3, 4, 3)
+"""The heads' outputs, stacked in this order: translation, rotation (a quaternion), log-scale."""
+
+
 class DeformationHeads(nn.Module):
     """Zero-initialised linear heads W -> (dx 3, dq 4, dlog_s 3), the identity quaternion added to dq.
 
@@ -75,8 +79,14 @@ class DeformationHeads(nn.Module):
 
     def split(self, out: torch.Tensor, dtype: torch.dtype) -> DeformationOutput:
         """The stacked heads' output [N, 10] as ``(dx, dq, dlog_s)`` in ``dtype``."""
-        dx, dq, dlog_s = out.to(dtype).split((3, 4, 3), dim=-1)
-        return dx, dq + self.identity.to(dtype), dlog_s
+        return self.finish(*out.to(dtype).split(HEAD_COLUMNS, dim=-1), dtype)
+
+    def finish(
+        self, dx: torch.Tensor, dq: torch.Tensor, dlog_s: torch.Tensor, dtype: torch.dtype
+    ) -> DeformationOutput:
+        """The three heads' outputs as ``(dx, dq, dlog_s)`` in ``dtype`` (the rotation's about the
+        identity)."""
+        return dx.to(dtype), dq.to(dtype) + self.identity.to(dtype), dlog_s.to(dtype)
 
 
 class DeformationField(nn.Module):
@@ -120,7 +130,7 @@ class DeformationField(nn.Module):
         ]
         skip = None if self.cfg.skip_layer is None else self.cfg.skip_layer + 1
         if fused_mlp.applies(x0):
-            return self._fused_forward(inputs, skip, e, x0.dtype)
+            return self._fused_forward(inputs, skip, x0.dtype)
         h = torch.relu(linear_of_parts(self.layers[0], inputs))
         for i, layer in enumerate(self.layers[1:], start=1):
             if i == skip:
@@ -129,24 +139,16 @@ class DeformationField(nn.Module):
                 h = torch.relu(layer(h))
         return self.heads(h, x0.dtype)
 
-    def _fused_forward(self, inputs: list, skip: int | None, e: int, dtype: torch.dtype) -> DeformationOutput:
+    def _fused_forward(self, inputs: list, skip: int | None, dtype: torch.dtype) -> DeformationOutput:
         """``forward`` as one native op (``fused_mlp``): the layers, the skip's concatenation as a
-        second product of the encoding, and the three heads as the last layer."""
-        first = self.layers[0]
-        x, weight, bias = fused_mlp.fold_parts(first.weight, first.bias, inputs)
-        weights, biases, skip_arg = [weight], [bias], None
-        for i, layer in enumerate(self.layers[1:], start=1):
-            if i == skip:
-                _, skip_weight, skip_bias = fused_mlp.fold_parts(layer.weight, layer.bias, inputs)
-                weights.append(layer.weight[:, e:])
-                biases.append(skip_bias)
-                skip_arg = (i, skip_weight)
-            else:
-                weights.append(layer.weight)
-                biases.append(layer.bias)
+        second product of the encoding, and the three heads as the last layer, output by head."""
         head_weight, head_bias = self.heads.stacked()
-        out = fused_mlp.fused_mlp(x, [*weights, head_weight], [*biases, head_bias], "relu", skip=skip_arg)
-        return self.heads.split(out, dtype)
+        weights = [*[layer.weight for layer in self.layers], head_weight]
+        biases = [*[layer.bias for layer in self.layers], head_bias]
+        dx, dq, dlog_s = fused_mlp.fused_mlp_of_parts(
+            inputs, weights, biases, "relu", skip_layer=skip, groups=HEAD_COLUMNS
+        )
+        return self.heads.finish(dx, dq, dlog_s, dtype)
 
 
 class HexPlaneDeformationField(nn.Module):

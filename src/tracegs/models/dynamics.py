@@ -208,9 +208,8 @@ class DynamicsField(nn.Module):
         time shared by all points enters as a bias)."""
         parts = self._input_parts(x, t)
         if fused_mlp.applies(x):
-            raw, own = self._fused_raw(parts, rates)
-        else:
-            raw, own = self._raw(parts, rates)
+            return self._fused_outputs(parts, rates)
+        raw, own = self._raw(parts, rates)
         named = {n: raw[:, self.head_rows(n)] for n in self.head_names if rates or n not in ACCELERATIONS}
         if own is not None:
             named |= {n: own[:, self.head_rows(n)] for n in self.own_names}
@@ -240,27 +239,37 @@ class DynamicsField(nn.Module):
         own = None if own_hidden is None else self.acceleration_head(self.acceleration_mlp[2:](own_hidden))
         return raw, own
 
-    def _fused_raw(self, parts: list, rates: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """``_raw`` as native ops (``fused_mlp``): the MLP and its head as one, the rates' stopped
-        gradient (``detach_acceleration_features``) inside it, and the own MLP with its head as
-        another on the same encoding (two first-layer products, the same FLOPs as one stacked)."""
+    def _fused_outputs(self, parts: list, rates: bool) -> dict[str, torch.Tensor]:
+        """``outputs`` as native ops (``fused_mlp``): the MLP and its head as one, each named output
+        its own tensor and the rates scaled inside it, the rates' stopped gradient
+        (``detach_acceleration_features``) inside it too, and the own MLP with its head as another on
+        the same encoding (two first-layer products, the same FLOPs as one stacked)."""
 
-        def chain(mlp: nn.Sequential, head: nn.Linear, stop_from: int | None = None) -> torch.Tensor:
-            layers = [m for m in mlp if isinstance(m, nn.Linear)]
-            x, weight, bias = fused_mlp.fold_parts(layers[0].weight, layers[0].bias, parts)
-            weights = [weight, *[m.weight for m in layers[1:]], head.weight]
-            biases = [bias, *[m.bias for m in layers[1:]], head.bias]
-            return fused_mlp.fused_mlp(x, weights, biases, self.cfg.activation, stop_from=stop_from)
+        def chain(mlp: nn.Sequential, head: nn.Linear, names: list[str], stop_from: int | None = None):
+            layers = [*[m for m in mlp if isinstance(m, nn.Linear)], head]
+            rates = [i for i, name in enumerate(names) if name in ACCELERATIONS]  # (the last ones)
+            outs = fused_mlp.fused_mlp_of_parts(
+                parts,
+                [layer.weight for layer in layers],
+                [layer.bias for layer in layers],
+                self.cfg.activation,
+                stop_from=stop_from,
+                groups=(3,) * len(names),
+                scaled_from=3 * rates[0] if rates else None,
+                scale=self.cfg.acceleration_scale,
+            )
+            return dict(zip(names, outs, strict=True))
 
         start = self._head_rates_start
         stop = rates and start is not None and self.cfg.detach_acceleration_features
-        raw = chain(self.mlp, self.head, start if stop else None)
-        own = (
-            chain(self.acceleration_mlp, self.acceleration_head)
-            if rates and self.separate_accelerations
-            else None
-        )
-        return raw, own
+        named = chain(self.mlp, self.head, self.head_names, start if stop else None)
+        if rates and self.separate_accelerations:
+            named |= chain(self.acceleration_mlp, self.acceleration_head, self.own_names)
+        return {
+            name: named[name]
+            for name in self.slices
+            if name in named and (rates or name not in ACCELERATIONS)
+        }
 
     def forward(self, x: torch.Tensor, t: float | torch.Tensor, rates: bool = True) -> DynamicsParams:
         """Dynamics parameters of particles at positions ``x`` [N, 3] at time ``t`` (float or [N, 1]);

@@ -70,39 +70,35 @@ def _vector_bytes() -> int:
 
 class _FusedMLP(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, x, skip_weight, settings, *layers):
-        skip_layer, activation, last_activation, _, bf16 = settings
+    def forward(ctx, x, skip_weight, time_row, settings, *layers):
+        skip_layer, activation, last_activation, _, bf16, encoded, groups, scaled_from, scale = settings
         half = len(layers) // 2
         weights, biases = list(layers[:half]), list(layers[half:])
         saved = EXTENSION.load().mlp_forward(
-            x, weights, biases, skip_weight, skip_layer, activation, last_activation, bf16
-        )
-        ctx.save_for_backward(skip_weight, *weights, *saved[1:])  # x, z and h, padded
+            x, weights, biases, skip_weight, skip_layer, activation, last_activation, bf16,
+            time_row, encoded, groups, scaled_from, scale,
+        )  # fmt: skip
+        outputs = len(groups)
+        ctx.save_for_backward(skip_weight, time_row, *weights, *saved[outputs:])  # x, z and h, padded
         ctx.settings, ctx.layers = settings, half
-        return saved[0]
+        return tuple(saved[:outputs])
 
     @staticmethod
     @torch.autograd.function.once_differentiable  # (no second derivatives: a clear error, not zeros)
-    def backward(ctx, grad_out):
-        skip_layer, activation, last_activation, stop_from, bf16 = ctx.settings
-        skip_weight, *rest = ctx.saved_tensors
+    def backward(ctx, *grads_out):
+        skip_layer, activation, last_activation, stop_from, bf16, encoded, _, scaled_from, scale = (
+            ctx.settings
+        )
+        skip_weight, time_row, *rest = ctx.saved_tensors
         n = ctx.layers
         weights, saved = rest[:n], rest[n:]
         grads = EXTENSION.load().mlp_backward(
-            grad_out.contiguous(),
-            [grad_out, *saved],  # (slot 0, the output, is not read)
-            weights,
-            skip_weight,
-            skip_layer,
-            activation,
-            last_activation,
-            stop_from,
-            ctx.needs_input_grad[0],
-            bf16,
-        )
+            list(grads_out), saved, weights, skip_weight, skip_layer, activation, last_activation,
+            stop_from, ctx.needs_input_grad[0], bf16, time_row, encoded, scaled_from, scale,
+        )  # fmt: skip
         d_skip = grads[2 * n] if skip_weight is not None and ctx.needs_input_grad[1] else None
         d_x = grads[2 * n + 1] if ctx.needs_input_grad[0] else None
-        return d_x, d_skip, None, *grads[:n], *grads[n : 2 * n]
+        return d_x, d_skip, None, None, *grads[:n], *grads[n : 2 * n]
 
 
 def fused_mlp(
@@ -111,25 +107,90 @@ def fused_mlp(
     biases: list[torch.Tensor],
     activation: str,
     last_activation: bool = False,
-    skip: tuple[int, torch.Tensor] | None = None,
+    skip: tuple[int, torch.Tensor | None] | None = None,
     stop_from: int | None = None,
-) -> torch.Tensor:
+    time_row: torch.Tensor | None = None,
+    groups: tuple[int, ...] | None = None,
+    scaled_from: int | None = None,
+    scale: float = 1.0,
+) -> torch.Tensor | tuple[torch.Tensor, ...]:
     """The MLP ``z_i = in_i W_i^T + b_i``, ``h_i = act(z_i)`` on ``x`` [N, E] (``in_0 = x``,
     ``in_i = h_{i-1}``), the last layer linear unless ``last_activation``: its output [N, O_last].
 
     ``skip = (i, S)``: layer ``i`` also adds ``x S^T`` (a concatenation [x, h] with its weight split);
     ``stop_from``: the last layer's outputs from this one on pass no gradient to its input (they still
-    train its weights). Call where ``applies`` says so; under bf16 autocast the products are bf16's
-    (``bf16_products``)."""
+    train its weights). ``time_row`` [1, Et] (no gradient): every point's input is ``[x, time_row]``,
+    the first layer's weight whole [O, E + Et] and the row's product folded into its bias; the skip
+    layer then has ``skip = (i, None)`` and its whole weight [O, E + Et + K] (the hidden input last).
+    ``groups``: the output as a tuple of tensors of these column counts, those from column
+    ``scaled_from`` on as ``r |r| / scale`` (f_trd's rates). Call where ``applies`` says so; under bf16
+    autocast the products are bf16's (``bf16_products``)."""
     skip_layer, skip_weight = (-1, None) if skip is None else skip
+    outputs = (weights[-1].shape[0],) if groups is None else tuple(groups)
     settings = (
         skip_layer,
         ACTIVATION_CODES[activation],
         last_activation,
         -1 if stop_from is None else stop_from,
         _autocast_bf16(),
+        0 if time_row is None else weights[0].shape[1],
+        outputs,
+        -1 if scaled_from is None else scaled_from,
+        float(scale),
     )
-    return _FusedMLP.apply(x.contiguous(), skip_weight, settings, *weights, *biases)
+    out = _FusedMLP.apply(x.contiguous(), skip_weight, time_row, settings, *weights, *biases)
+    return out[0] if groups is None else out
+
+
+def fused_mlp_of_parts(
+    parts: list[tuple[torch.Tensor, slice | torch.Tensor]],
+    weights: list[torch.Tensor],
+    biases: list[torch.Tensor],
+    activation: str,
+    skip_layer: int | None = None,
+    **kwargs,
+) -> torch.Tensor | tuple[torch.Tensor, ...]:
+    """``fused_mlp`` on an input given in parts (``encoding.product_of_parts``' arguments), every
+    weight whole: the first layer's takes the parts' concatenation [O, E], the skip layer's (index
+    ``skip_layer``, >= 1) that concatenation then the previous layer's output [O, E + K].
+
+    Where the parts are the points' own columns then one row shared by all (a frame's time) the op
+    takes them as they are (``time_row``); otherwise they are folded and concatenated here
+    (``fold_parts``). ``kwargs``: ``fused_mlp``'s ``stop_from``, ``groups``, ``scaled_from``, ``scale``."""
+    weights, biases = list(weights), list(biases)
+    shared = _points_then_row(parts)
+    if shared is not None:
+        x, row = shared
+        skip = None if skip_layer is None else (skip_layer, None)
+        return fused_mlp(x, weights, biases, activation, skip=skip, time_row=row, **kwargs)
+    encoded = weights[0].shape[1]
+    x, weights[0], biases[0] = fold_parts(weights[0], biases[0], parts)
+    skip = None
+    if skip_layer is not None:
+        whole = weights[skip_layer]
+        _, skip_weight, biases[skip_layer] = fold_parts(whole, biases[skip_layer], parts)
+        weights[skip_layer], skip = whole[:, encoded:], (skip_layer, skip_weight)
+    return fused_mlp(x, weights, biases, activation, skip=skip, **kwargs)
+
+
+def _points_then_row(parts: list) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """``(x [N, Ex], row [1, Et])`` where ``parts`` are the points' values in columns [0, Ex) then one
+    row without gradient in the next Et: the op's ``time_row`` form; else None."""
+    if len(parts) != 2:
+        return None
+    (x, x_columns), (row, row_columns) = parts
+    if not (isinstance(x_columns, slice) and isinstance(row_columns, slice)):
+        return None
+    ex, et = x.shape[-1], row.shape[-1]
+    if x_columns.step not in (None, 1) or row_columns.step not in (None, 1):
+        return None
+    if x_columns.start not in (None, 0) or x_columns.stop != ex or row_columns.start != ex:
+        return None
+    if row_columns.stop not in (None, ex + et) or row.shape[0] != 1 or x.shape[0] < 2:
+        return None
+    if row.requires_grad or row.dtype != x.dtype:
+        return None
+    return x, row
 
 
 def fold_parts(

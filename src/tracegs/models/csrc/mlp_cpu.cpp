@@ -22,6 +22,11 @@
 // from that one on pass no gradient to its input (f_trd's rates, read from its features with their
 // gradient stopped). Sums over points (the weights' and biases' gradients) run over fixed blocks of
 // rows in a fixed order: the same result for any thread count.
+// The fields call it with their parameters whole: the first layer's (and the skip layer's) input as
+// the points' encoding and one row every point shares (a frame's encoded time, folded into the bias),
+// and the last layer's outputs split into named groups, f_trd's rates scaled as r |r| / scale; the
+// products' sums stop at a layer's real widths, not its padding. Each of those was an autograd node
+// or two of small ATen ops a call (docs/DESIGN.md, "Fused MLPs").
 
 #include <ATen/Dispatch.h>
 #include <ATen/Parallel.h>
@@ -344,7 +349,7 @@ void weight_gradient(const T* d, int64_t m, const T* in, int64_t k, int64_t n, T
             T* pw = partial.get() + c * (m * k + m);
             T* pb = pw + m * k;
             const int64_t r0 = c * CHUNK_ROWS, r1 = std::min(n, r0 + CHUNK_ROWS);
-            for (int64_t o0 = 0; o0 < m; o0 += OB) {
+            for (int64_t o0 = 0; o0 < m_out; o0 += OB) {  // (m_out rounded up to OB <= m: PAD's multiple)
                 for (int64_t v0 = 0; v0 < kv; v0 += GB) {
                     const int nv = int(std::min<int64_t>(GB, kv - v0));
                     V acc[OB][GB] = {};
@@ -520,21 +525,29 @@ inline uint16_t* bf16_data(at::Tensor& t) {
     return t.defined() ? reinterpret_cast<uint16_t*>(t.data_ptr<at::BFloat16>()) : nullptr;
 }
 
+// The rows of B = w^T (``transpose``) or w (its rows from ``keep`` on left zero) that are not padding:
+// the products' sums stop there (a head's 3 outputs, not 16; a first layer's 39 encoded inputs, not 48).
+inline int64_t real_rows(const at::Tensor& w, bool transpose, int64_t keep) {
+    const int64_t rows = w.size(transpose ? 1 : 0);
+    return keep >= 0 && keep < rows ? keep : rows;
+}
+
 // out = a b (+ init) by rows, each result vector to epi: float products, or bf16 ones where ``a_bf16``
 // (a's bf16 copy) is defined, b then packed as pairs (``pack_pairs``) from ``w`` as ``pack`` would.
 template <typename T, typename Epi>
 void rows_product(const at::Tensor& a, const at::Tensor& a_bf16, const at::Tensor& w, bool transpose, int64_t keep,
                   const T* init, int64_t n, Epi epi, const at::Tensor& a2 = {}, const at::Tensor& a2_bf16 = {},
                   const at::Tensor& w2 = {}) {
+    const int64_t k = real_rows(w, transpose, keep), k2 = w2.defined() ? real_rows(w2, transpose, -1) : 0;
 #if BF16_PRODUCTS
     if constexpr (std::is_same_v<T, float>) {
         if (a_bf16.defined()) {
             const at::Tensor b = pack_pairs(w, transpose, keep);
-            std::vector<PairBF16> pairs{{pairs_of(a_bf16), a.size(1) / 2, pairs_of(b), b.size(1), b.size(0)}};
+            std::vector<PairBF16> pairs{{pairs_of(a_bf16), a.size(1) / 2, pairs_of(b), b.size(1), (k + 1) / 2}};
             at::Tensor b2;
             if (w2.defined()) {
                 b2 = pack_pairs(w2, transpose);
-                pairs.push_back({pairs_of(a2_bf16), a2.size(1) / 2, pairs_of(b2), b2.size(1), b2.size(0)});
+                pairs.push_back({pairs_of(a2_bf16), a2.size(1) / 2, pairs_of(b2), b2.size(1), (k2 + 1) / 2});
             }
             product(pairs, init, n, b.size(1), epi);
             return;
@@ -542,11 +555,11 @@ void rows_product(const at::Tensor& a, const at::Tensor& a_bf16, const at::Tenso
     }
 #endif
     const at::Tensor b = pack<T>(w, transpose, keep);
-    std::vector<Pair<T>> pairs{{a.data_ptr<T>(), a.size(1), b.data_ptr<T>(), b.size(1), b.size(0)}};
+    std::vector<Pair<T>> pairs{{a.data_ptr<T>(), a.size(1), b.data_ptr<T>(), b.size(1), k}};
     at::Tensor b2;
     if (w2.defined()) {
         b2 = pack<T>(w2, transpose);
-        pairs.push_back({a2.data_ptr<T>(), a2.size(1), b2.data_ptr<T>(), b2.size(1), b2.size(0)});
+        pairs.push_back({a2.data_ptr<T>(), a2.size(1), b2.data_ptr<T>(), b2.size(1), k2});
     }
     product(pairs, init, n, b.size(1), epi);
 }
@@ -562,34 +575,140 @@ void with_activation(int64_t act, Fn fn) {
     }
 }
 
-// [out (a view of the padded last layer), x padded, then per layer z_i and h_i (padded; for ReLU
-// z_i is h_i, for the linear head both are its output)].
+// The encoding of the first layer (and of the skip layer) in two parts (``time_row`` defined): x's
+// columns [0, ex) of those layers' weights, then [ex, encoded) for one row t [1, encoded - ex] that
+// every point shares (the encoded time of a frame), whose product is folded into the layer's bias; the
+// skip layer's weight holds its hidden input's columns after ``encoded``. The weights stay the module's
+// parameters, whole: no slices, no one-row products and no sums of their gradients in autograd.
+struct Parts {
+    at::Tensor time;  // [1, encoded - ex] (undefined: x is the whole encoding, the weights as given)
+    int64_t ex = 0, encoded = 0;
+    bool defined() const { return time.defined(); }
+};
+
+// The weights as the products take them: with parts, the first layer's x columns, and the skip
+// layer's hidden columns with its x columns as the skip weight.
+void take_parts(const Parts& parts, std::vector<at::Tensor>& weights, c10::optional<at::Tensor>& skip_weight,
+                int64_t skip_layer) {
+    if (!parts.defined()) {
+        return;
+    }
+    TORCH_CHECK(weights[0].size(1) == parts.encoded, "fused MLP: the first layer does not take the encoding");
+    TORCH_CHECK(!skip_weight.has_value(), "fused MLP: with a time row the skip layer's weight is whole");
+    TORCH_CHECK(skip_layer != 0, "fused MLP: with a time row the skip layer follows the first");
+    if (skip_layer >= 0) {
+        const at::Tensor whole = weights[skip_layer];
+        TORCH_CHECK(whole.size(1) > parts.encoded, "fused MLP: the skip layer does not take the encoding");
+        skip_weight = whole.narrow(1, 0, parts.ex);
+        weights[skip_layer] = whole.narrow(1, parts.encoded, whole.size(1) - parts.encoded);
+    }
+    weights[0] = weights[0].narrow(1, 0, parts.ex);
+}
+
+// b + t W_t^T: a layer's bias with the time row's product folded in (W_t: the layer's time columns).
+template <typename T>
+at::Tensor fold_time(const at::Tensor& b0, const at::Tensor& layer_weight, const Parts& parts) {
+    constexpr auto type = c10::CppTypeToScalarType<T>::value;
+    const at::Tensor b = as_type(b0, type), w = as_type(layer_weight, type), t = as_type(parts.time, type);
+    at::Tensor out = at::empty({w.size(0)}, b.options());
+    T* o = out.data_ptr<T>();
+    const T *bp = b.data_ptr<T>(), *wp = w.data_ptr<T>(), *tp = t.data_ptr<T>();
+    for (int64_t r = 0; r < w.size(0); ++r) {
+        T sum = T(0);
+        for (int64_t j = parts.ex; j < parts.encoded; ++j) {
+            sum += wp[r * w.stride(0) + j * w.stride(1)] * tp[(j - parts.ex) * t.stride(1)];
+        }
+        o[r] = sum + bp[r * b.stride(0)];
+    }
+    return out;
+}
+
+// A whole layer's weight gradient [O, columns] from its parts: x's columns (dx_part [O, ex]), the time
+// row's (db t, the bias gradient times the row), then the hidden input's (dh [O, K], or none).
+template <typename T>
+at::Tensor whole_gradient(const at::Tensor& dx_part, const at::Tensor& db, const at::Tensor& dh, const Parts& parts,
+                          int64_t columns) {
+    const int64_t o = dx_part.size(0), k = dh.defined() ? dh.size(1) : 0;
+    at::Tensor out = at::empty({o, columns}, dx_part.options());
+    const at::Tensor t = as_type(parts.time, dx_part.scalar_type());
+    T* w = out.data_ptr<T>();
+    const T *xp = dx_part.data_ptr<T>(), *bp = db.data_ptr<T>(), *tp = t.data_ptr<T>();
+    for (int64_t r = 0; r < o; ++r) {
+        T* row = w + r * columns;
+        std::copy(xp + r * parts.ex, xp + (r + 1) * parts.ex, row);
+        for (int64_t j = parts.ex; j < parts.encoded; ++j) {
+            row[j] = bp[r] * tp[(j - parts.ex) * t.stride(1)];
+        }
+        if (k > 0) {
+            const T* hp = dh.data_ptr<T>() + r * k;
+            std::copy(hp, hp + k, row + parts.encoded);
+        }
+    }
+    return out;
+}
+
+Parts make_parts(const c10::optional<at::Tensor>& time_row, int64_t ex, int64_t encoded) {
+    Parts parts;
+    if (time_row.has_value()) {
+        TORCH_CHECK(time_row->dim() == 2 && time_row->size(0) == 1 && time_row->size(1) == encoded - ex,
+                    "fused MLP: the time row must be [1, encoded - x's columns]");
+        parts.time = *time_row;
+        parts.ex = ex;
+        parts.encoded = encoded;
+    }
+    return parts;
+}
+
+// [the outputs (one per group), x padded, then per layer z_i and h_i (padded; for ReLU z_i is h_i,
+// for the linear head both are its output)]. The last layer's outputs in ``groups`` of consecutive
+// columns (each its own tensor, contiguous), those from ``scaled_from`` on (>= 0) as r |r| / scale
+// (f_trd's rates, dynamics.py's scale_acceleration).
 std::vector<at::Tensor> mlp_forward(
     const at::Tensor& x,
     std::vector<at::Tensor> weights,
     std::vector<at::Tensor> biases,
-    const c10::optional<at::Tensor>& skip_weight,
+    c10::optional<at::Tensor> skip_weight,
     int64_t skip_layer,
     int64_t activation,
     bool last_activation,
-    bool bf16) {
+    bool bf16,
+    const c10::optional<at::Tensor>& time_row,
+    int64_t encoded,
+    std::vector<int64_t> groups,
+    int64_t scaled_from,
+    double scale) {
     const int64_t layers = int64_t(weights.size());
     TORCH_CHECK(layers > 0 && int64_t(biases.size()) == layers, "mlp_forward: one bias per weight");
     TORCH_CHECK(!bf16 || (BF16_PRODUCTS && x.scalar_type() == at::kFloat),
                 "mlp_forward: bf16 products need float32 inputs and an AVX512-BF16 build");
-    TORCH_CHECK(skip_layer < 0 || skip_weight.has_value(), "mlp_forward: the skip layer needs its weight");
     TORCH_CHECK(activation == RELU || activation == SILU, "mlp_forward: unknown activation");
     TORCH_CHECK(x.dim() == 2 && (x.scalar_type() == at::kFloat || x.scalar_type() == at::kDouble),
                 "mlp_forward: x must be [N, E] float32 or float64");
-    const int64_t n = x.size(0);
-    std::vector<at::Tensor> saved{at::Tensor()};
-    at::Tensor h;
+    TORCH_CHECK(scaled_from < 0 || !last_activation, "mlp_forward: scaled outputs need a linear last layer");
+    const Parts parts = make_parts(time_row, x.size(1), encoded);
+    const std::vector<at::Tensor> whole = weights;
+    take_parts(parts, weights, skip_weight, skip_layer);
+    TORCH_CHECK(skip_layer < 0 || skip_weight.has_value(), "mlp_forward: the skip layer needs its weight");
+    const int64_t n = x.size(0), outputs = weights.back().size(0);
+    int64_t grouped = 0;
+    for (const int64_t g : groups) {
+        TORCH_CHECK(g > 0, "mlp_forward: an output group has no columns");
+        grouped += g;
+    }
+    TORCH_CHECK(grouped == outputs, "mlp_forward: the output groups do not cover the last layer");
+    std::vector<at::Tensor> saved(groups.size());
     AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "mlp_forward", [&] {
+        if (parts.defined()) {
+            biases[0] = fold_time<scalar_t>(biases[0], whole[0], parts);
+            if (skip_layer >= 0) {
+                biases[skip_layer] = fold_time<scalar_t>(biases[skip_layer], whole[skip_layer], parts);
+            }
+        }
         const at::Tensor input = pack<scalar_t>(x, false);  // [N padded to PAD rows, E padded]
         const int64_t rows = input.size(0);
         saved.push_back(input);
         const at::Tensor input_bf16 = bf16 ? bf16_copy(input) : at::Tensor();
-        h = input;
+        at::Tensor h = input;
         at::Tensor h_bf16 = input_bf16;
         for (int64_t i = 0; i < layers; ++i) {
             TORCH_CHECK(weights[i].size(1) == (i == 0 ? x.size(1) : weights[i - 1].size(0)),
@@ -618,48 +737,85 @@ std::vector<at::Tensor> mlp_forward(
             h = out;
             h_bf16 = out_bf16;
         }
+        // the outputs by groups, the scaled ones as r |r| / scale (as ATen: the product, then the division)
+        const scalar_t* hp = h.data_ptr<scalar_t>();
+        const int64_t ld = h.size(1);
+        const scalar_t s = scalar_t(scale);
+        for (int64_t g = 0, c0 = 0; g < int64_t(groups.size()); c0 += groups[g], ++g) {
+            at::Tensor o = at::empty({n, groups[g]}, input.options());
+            scalar_t* op = o.data_ptr<scalar_t>();
+            for (int64_t r = 0; r < n; ++r) {
+                for (int64_t c = 0; c < groups[g]; ++c) {
+                    const scalar_t v = hp[r * ld + c0 + c];
+                    op[r * groups[g] + c] = scaled_from >= 0 && c0 + c >= scaled_from ? v * std::abs(v) / s : v;
+                }
+            }
+            saved[g] = o;
+        }
     });
-    saved[0] = h.narrow(0, 0, n).narrow(1, 0, weights.back().size(0));
     return saved;
 }
 
-// [d weights (L), d biases (L), d skip weight, d x] (the last two empty when not asked for).
+// [d weights (L), d biases (L), d skip weight, d x] (the last two empty when not asked for; with a time
+// row the first and the skip layer's weight gradients are whole and the skip weight's is empty).
+// ``grads_out``: the gradients of mlp_forward's outputs (its groups, scaled or not, in order).
 std::vector<at::Tensor> mlp_backward(
-    const at::Tensor& grad_out,
+    std::vector<at::Tensor> grads_out,
     std::vector<at::Tensor> saved,
     std::vector<at::Tensor> weights,
-    const c10::optional<at::Tensor>& skip_weight,
+    c10::optional<at::Tensor> skip_weight,
     int64_t skip_layer,
     int64_t activation,
     bool last_activation,
     int64_t stop_from,
     bool wants_x,
-    bool bf16) {
+    bool bf16,
+    const c10::optional<at::Tensor>& time_row,
+    int64_t encoded,
+    int64_t scaled_from,
+    double scale) {
     const int64_t layers = int64_t(weights.size());
-    TORCH_CHECK(int64_t(saved.size()) == 2 + 2 * layers, "mlp_backward: saved tensors do not match");
-    const at::Tensor& input = saved[1];
+    TORCH_CHECK(int64_t(saved.size()) == 1 + 2 * layers, "mlp_backward: saved tensors do not match");
+    TORCH_CHECK(!grads_out.empty(), "mlp_backward: no output gradients");
+    const at::Tensor& input = saved[0];
     TORCH_CHECK(!bf16 || (BF16_PRODUCTS && input.scalar_type() == at::kFloat),
                 "mlp_backward: bf16 products need float32 inputs and an AVX512-BF16 build");
+    const Parts parts = make_parts(time_row, encoded - (time_row.has_value() ? time_row->size(1) : 0), encoded);
+    const std::vector<at::Tensor> whole = weights;
+    take_parts(parts, weights, skip_weight, skip_layer);
     const auto type = input.scalar_type();
-    const int64_t n = grad_out.size(0), rows = input.size(0);
+    const int64_t n = grads_out[0].size(0), rows = input.size(0);
     std::vector<at::Tensor> grads(2 * layers + 2, at::empty({0}, input.options()));
     at::Tensor dx;
     AT_DISPATCH_FLOATING_TYPES(type, "mlp_backward", [&] {
-        // dz of the last layer: the incoming gradient, padded, times its activation's derivative
+        // dz of the last layer: the incoming gradients, padded (the scaled outputs' times 2 |r| / scale),
+        // times its activation's derivative
         const int64_t last = layers - 1;
-        const int64_t m_last = saved[2 + 2 * last].size(1);
+        const int64_t m_last = saved[1 + 2 * last].size(1);
         at::Tensor dz = at::empty({rows, m_last}, input.options());
         {
             scalar_t* p = dz.data_ptr<scalar_t>();
-            const scalar_t* g = grad_out.data_ptr<scalar_t>();
-            const int64_t o = grad_out.size(1), gs = grad_out.stride(0);
+            const scalar_t* raw = saved[1 + 2 * last].data_ptr<scalar_t>();
+            const scalar_t twice = scalar_t(2) / scalar_t(scale);
             std::fill(p, p + rows * m_last, scalar_t(0));
-            for (int64_t r = 0; r < n; ++r) {
-                std::copy(g + r * gs, g + r * gs + o, p + r * m_last);
+            int64_t c0 = 0;
+            for (const at::Tensor& g0 : grads_out) {
+                const at::Tensor g = as_type(g0, type);
+                const scalar_t* gp = g.data_ptr<scalar_t>();
+                const int64_t o = g.size(1), s0 = g.stride(0), s1 = g.stride(1);
+                TORCH_CHECK(g.size(0) == n && c0 + o <= m_last, "mlp_backward: an output gradient's shape");
+                for (int64_t r = 0; r < n; ++r) {
+                    for (int64_t c = 0; c < o; ++c) {
+                        const scalar_t v = gp[r * s0 + c * s1];
+                        const int64_t at = r * m_last + c0 + c;
+                        p[at] = scaled_from >= 0 && c0 + c >= scaled_from ? v * (twice * std::abs(raw[at])) : v;
+                    }
+                }
+                c0 += o;
             }
         }
         if (activates(last, layers, last_activation)) {
-            const at::Tensor& s = saved[activation == SILU ? 2 + 2 * last : 3 + 2 * last];
+            const at::Tensor& s = saved[activation == SILU ? 1 + 2 * last : 2 + 2 * last];
             with_activation<scalar_t>(activation, [&](auto a) {
                 constexpr int64_t L = LANES<scalar_t>;
                 scalar_t* p = dz.data_ptr<scalar_t>();
@@ -671,21 +827,27 @@ std::vector<at::Tensor> mlp_backward(
         }
         at::Tensor dz_bf16 = bf16 ? bf16_copy(dz) : at::Tensor();  // (the input gradients' operand)
         for (int64_t i = last; i >= 0; --i) {
-            const at::Tensor& in = i == 0 ? input : saved[3 + 2 * (i - 1)];  // h_{i-1}, padded
+            const at::Tensor& in = i == 0 ? input : saved[2 + 2 * (i - 1)];  // h_{i-1}, padded
             const int64_t m = dz.size(1), k = in.size(1);
             const int64_t o_real = weights[i].size(0), k_real = weights[i].size(1);
             at::Tensor dw = at::empty({o_real, k_real}, input.options());
             at::Tensor db = at::empty({o_real}, input.options());
             weight_gradient<scalar_t>(dz.data_ptr<scalar_t>(), m, in.data_ptr<scalar_t>(), k, n, dw.data_ptr<scalar_t>(),
                                       db.data_ptr<scalar_t>(), o_real, k_real);
-            grads[i] = as_type(dw, weights[i].scalar_type());
-            grads[layers + i] = as_type(db, weights[i].scalar_type());
+            at::Tensor ds;
             if (i == skip_layer) {  // (its bias is the layer's: db above)
-                at::Tensor ds = at::empty({skip_weight->size(0), skip_weight->size(1)}, input.options());
+                ds = at::empty({skip_weight->size(0), skip_weight->size(1)}, input.options());
                 weight_gradient<scalar_t>(dz.data_ptr<scalar_t>(), m, input.data_ptr<scalar_t>(), input.size(1), n,
                                           ds.data_ptr<scalar_t>(), nullptr, ds.size(0), ds.size(1));
+            }
+            if (parts.defined() && (i == 0 || i == skip_layer)) {  // whole: [x's | the time row's | hidden]
+                dw = i == 0 ? whole_gradient<scalar_t>(dw, db, at::Tensor(), parts, parts.encoded)
+                            : whole_gradient<scalar_t>(ds, db, dw, parts, whole[i].size(1));
+            } else if (i == skip_layer) {
                 grads[2 * layers] = as_type(ds, skip_weight->scalar_type());
             }
+            grads[i] = as_type(dw, whole[i].scalar_type());
+            grads[layers + i] = as_type(db, whole[i].scalar_type());
             // the input gradients read the rows before stop_from only
             const int64_t keep = i == last && stop_from >= 0 ? stop_from : -1;
             // d x += dz_i W_i (the first layer) and dz_i S (the skip layer; both where that is the first)
@@ -710,7 +872,7 @@ std::vector<at::Tensor> mlp_backward(
             at::Tensor next = at::empty({rows, k}, input.options());  // (rows < n: all written below)
             std::fill(next.data_ptr<scalar_t>() + n * k, next.data_ptr<scalar_t>() + rows * k, scalar_t(0));
             at::Tensor next_bf16 = bf16 ? at::empty({rows, k}, dz_bf16.options()) : at::Tensor();
-            const at::Tensor& s = saved[activation == SILU ? 2 + 2 * (i - 1) : 3 + 2 * (i - 1)];
+            const at::Tensor& s = saved[activation == SILU ? 1 + 2 * (i - 1) : 2 + 2 * (i - 1)];
             with_activation<scalar_t>(activation, [&](auto a) {
                 rows_product<scalar_t>(dz, dz_bf16, weights[i], false, keep, nullptr, n,
                                        BackwardStore<scalar_t, decltype(a)::value>{next.data_ptr<scalar_t>(), s.data_ptr<scalar_t>(), k,
