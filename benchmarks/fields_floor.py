@@ -80,13 +80,23 @@ def loss_weights(model, t_prime: float, t: float) -> dict[str, torch.Tensor]:
 
 
 def fields_step(model, t_prime: float, t: float, weights: dict[str, torch.Tensor]) -> None:
-    """One step's fields, forward and backward (a fixed random functional of every output)."""
+    """One step's fields, forward and backward (a fixed random functional of every output); the
+    gradients then dropped as the trainer's optimisers drop them (``train.optim.zero_grads``: by
+    their parameters, not by walking the modules)."""
     state, losses = model.training_state(t_prime, t)
     total = sum(v.sum() for v in losses.values()) if losses else 0.0
     for name, w in weights.items():
         total = total + (state[name] * w).sum()
     total.backward()
-    model.zero_grad(set_to_none=True)
+    for p in _parameters(model):
+        p.grad = None
+
+
+_PARAMETERS: dict[int, list[torch.Tensor]] = {}
+
+
+def _parameters(model) -> list[torch.Tensor]:
+    return _PARAMETERS.setdefault(id(model), list(model.parameters()))
 
 
 GEMMS = {torch.ops.aten.mm.default, torch.ops.aten.addmm.default, torch.ops.aten.bmm.default}

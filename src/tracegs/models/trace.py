@@ -145,8 +145,10 @@ class TraceModel(nn.Module):
             dx = dx.float() * self._frame_scale
         states = []
         for k in range(len(times)):  # (the static Gaussians keep their canonical rows)
-            block = slice(k * n, (k + 1) * n)
-            moved = deform_rows(canonical, rows, dx[block].float(), dq[block].float(), dlog_s[block].float())
+            outputs = (dx, dq, dlog_s)  # (one time: all rows, without slices)
+            if len(times) > 1:
+                outputs = tuple(out[k * n : (k + 1) * n] for out in outputs)
+            moved = deform_rows(canonical, rows, *[out.float() for out in outputs])
             states.append(dict(zip(names, moved, strict=True)))
         return states
 

@@ -342,7 +342,7 @@ void weight_gradient(const T* d, int64_t m, const T* in, int64_t k, int64_t n, T
     using V = typename VT<T>::v;
     constexpr int64_t L = LANES<T>;
     const int64_t chunks = std::max<int64_t>(1, (n + CHUNK_ROWS - 1) / CHUNK_ROWS);
-    std::unique_ptr<T[]> partial(new T[chunks * (m * k + m)]);  // (every read element is written first)
+    std::unique_ptr<T[]> partial(new T[chunks * (m * k + m)]);  // (the rows summed below are written first)
     const int64_t kv = k / L;
     at::parallel_for(0, chunks, 1, [&](int64_t c0, int64_t c1) {
         for (int64_t c = c0; c < c1; ++c) {
@@ -381,20 +381,23 @@ void weight_gradient(const T* d, int64_t m, const T* in, int64_t k, int64_t n, T
             }
         }
     });
-    for (int64_t o = 0; o < m_out; ++o) {
-        for (int64_t j = 0; j < k_out; ++j) {
-            T sum = T(0);
-            for (int64_t c = 0; c < chunks; ++c) {
-                sum += partial[c * (m * k + m) + o * k + j];
-            }
-            dw[o * k_out + j] = sum;
+    // the chunks' partial sums added in chunk order, a vector at a time (the same sums as element by
+    // element), then written unpadded
+    const int64_t size = m * k + m, rows = (m_out + OB - 1) / OB * OB;  // (the rows the chunks wrote)
+    for (int64_t c = 1; c < chunks; ++c) {
+        T* total = partial.get();
+        const T* part = partial.get() + c * size;
+        for (int64_t e = 0; e < rows * k; e += L) {
+            storev(total + e, loadv(total + e) + loadv(part + e));
         }
+        for (int64_t e = m * k; db != nullptr && e < size; e += L) {
+            storev(total + e, loadv(total + e) + loadv(part + e));
+        }
+    }
+    for (int64_t o = 0; o < m_out; ++o) {
+        std::copy(partial.get() + o * k, partial.get() + o * k + k_out, dw + o * k_out);
         if (db != nullptr) {
-            T sum = T(0);
-            for (int64_t c = 0; c < chunks; ++c) {
-                sum += partial[c * (m * k + m) + m * k + o];
-            }
-            db[o] = sum;
+            db[o] = partial[m * k + o];
         }
     }
 }
@@ -417,12 +420,17 @@ at::Tensor pack(const at::Tensor& w0, bool transpose, int64_t keep_rows = -1) {
     at::Tensor out = at::empty({padded(rows), pc}, w.options());
     T* o = out.data_ptr<T>();
     const T* src = w.data_ptr<T>();
-    std::fill(o, o + out.numel(), T(0));
     for (int64_t r = 0; r < kept; ++r) {
-        for (int64_t c = 0; c < cols; ++c) {
-            o[r * pc + c] = src[r * rs + c * cs];
+        if (cs == 1) {  // (a row in one copy: the fields' inputs, [N, E])
+            std::copy(src + r * rs, src + r * rs + cols, o + r * pc);
+        } else {
+            for (int64_t c = 0; c < cols; ++c) {
+                o[r * pc + c] = src[r * rs + c * cs];
+            }
         }
+        std::fill(o + r * pc + cols, o + (r + 1) * pc, T(0));
     }
+    std::fill(o + kept * pc, o + out.numel(), T(0));
     return out;
 }
 
