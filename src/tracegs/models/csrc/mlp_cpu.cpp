@@ -333,69 +333,65 @@ void product(const std::vector<P>& pairs, const typename Sum<P>::type* init, int
     at::parallel_for(0, tiles, 1, [&](int64_t t0, int64_t t1) { product_tiles(pairs, init, n, vectors, t0, t1, epi); });
 }
 
-// dW = D^T In and (unless db is null) db = column sums of D, over n rows of D [n, M] and In [n, K]
-// (padded widths), by chunks of CHUNK_ROWS rows summed in order; written unpadded: dw [m_out, k_out]
-// (contiguous) and db [m_out].
+// One chunk's share of dW = D^T In and (unless pb is null) of db = the column sums of D: rows [0, cr)
+// of D [., m] and In [., k] (padded widths, row strides m and k), into pw [m, k] (its rows up to m_out
+// rounded up to OB) and pb [m]. The chunks are CHUNK_ROWS rows of the points, summed in order by
+// reduce_partials: the same sums for any thread count.
 template <typename T>
-void weight_gradient(const T* d, int64_t m, const T* in, int64_t k, int64_t n, T* dw, T* db, int64_t m_out,
-                     int64_t k_out) {
+void weight_partial(const T* d, int64_t m, const T* in, int64_t k, int64_t cr, T* pw, T* pb, int64_t m_out) {
     using V = typename VT<T>::v;
     constexpr int64_t L = LANES<T>;
-    const int64_t chunks = std::max<int64_t>(1, (n + CHUNK_ROWS - 1) / CHUNK_ROWS);
-    std::unique_ptr<T[]> partial(new T[chunks * (m * k + m)]);  // (the rows summed below are written first)
     const int64_t kv = k / L;
-    at::parallel_for(0, chunks, 1, [&](int64_t c0, int64_t c1) {
-        for (int64_t c = c0; c < c1; ++c) {
-            T* pw = partial.get() + c * (m * k + m);
-            T* pb = pw + m * k;
-            const int64_t r0 = c * CHUNK_ROWS, r1 = std::min(n, r0 + CHUNK_ROWS);
-            for (int64_t o0 = 0; o0 < m_out; o0 += OB) {  // (m_out rounded up to OB <= m: PAD's multiple)
-                for (int64_t v0 = 0; v0 < kv; v0 += GB) {
-                    const int nv = int(std::min<int64_t>(GB, kv - v0));
-                    V acc[OB][GB] = {};
-                    for (int64_t r = r0; r < r1; ++r) {
-                        V iv[GB];
-                        for (int j = 0; j < GB; ++j) {
-                            iv[j] = j < nv ? loadv(in + r * k + (v0 + j) * L) : V{};
-                        }
-                        for (int o = 0; o < OB; ++o) {
-                            const V dv = broadcast<T>(d[r * m + o0 + o]);
-                            for (int j = 0; j < GB; ++j) {
-                                acc[o][j] += dv * iv[j];
-                            }
-                        }
-                    }
-                    for (int o = 0; o < OB; ++o) {
-                        for (int j = 0; j < nv; ++j) {
-                            storev(pw + (o0 + o) * k + (v0 + j) * L, acc[o][j]);
-                        }
+    for (int64_t o0 = 0; o0 < m_out; o0 += OB) {  // (m_out rounded up to OB <= m: PAD's multiple)
+        for (int64_t v0 = 0; v0 < kv; v0 += GB) {
+            const int nv = int(std::min<int64_t>(GB, kv - v0));
+            V acc[OB][GB] = {};
+            for (int64_t r = 0; r < cr; ++r) {
+                V iv[GB];
+                for (int j = 0; j < GB; ++j) {
+                    iv[j] = j < nv ? loadv(in + r * k + (v0 + j) * L) : V{};
+                }
+                for (int o = 0; o < OB; ++o) {
+                    const V dv = broadcast<T>(d[r * m + o0 + o]);
+                    for (int j = 0; j < GB; ++j) {
+                        acc[o][j] += dv * iv[j];
                     }
                 }
             }
-            for (int64_t v = 0; db != nullptr && v < m / L; ++v) {
-                V s{};
-                for (int64_t r = r0; r < r1; ++r) {
-                    s += loadv(d + r * m + v * L);
+            for (int o = 0; o < OB; ++o) {
+                for (int j = 0; j < nv; ++j) {
+                    storev(pw + (o0 + o) * k + (v0 + j) * L, acc[o][j]);
                 }
-                storev(pb + v * L, s);
             }
         }
-    });
-    // the chunks' partial sums added in chunk order, a vector at a time (the same sums as element by
-    // element), then written unpadded
+    }
+    for (int64_t v = 0; pb != nullptr && v < m / L; ++v) {
+        V s{};
+        for (int64_t r = 0; r < cr; ++r) {
+            s += loadv(d + r * m + v * L);
+        }
+        storev(pb + v * L, s);
+    }
+}
+
+// dw [m_out, k_out] (contiguous) and db [m_out] (none where null) from the chunks' partials
+// (weight_partial's, each [m, k] then [m]), added in chunk order a vector at a time (the same sums as
+// element by element).
+template <typename T>
+void reduce_partials(T* partial, int64_t chunks, int64_t m, int64_t k, T* dw, T* db, int64_t m_out, int64_t k_out) {
+    constexpr int64_t L = LANES<T>;
     const int64_t size = m * k + m, rows = (m_out + OB - 1) / OB * OB;  // (the rows the chunks wrote)
     for (int64_t c = 1; c < chunks; ++c) {
-        T* total = partial.get();
-        const T* part = partial.get() + c * size;
+        const T* part = partial + c * size;
         for (int64_t e = 0; e < rows * k; e += L) {
-            storev(total + e, loadv(total + e) + loadv(part + e));
+            storev(partial + e, loadv(partial + e) + loadv(part + e));
         }
         for (int64_t e = m * k; db != nullptr && e < size; e += L) {
-            storev(total + e, loadv(total + e) + loadv(part + e));
+            storev(partial + e, loadv(partial + e) + loadv(part + e));
         }
     }
     for (int64_t o = 0; o < m_out; ++o) {
-        std::copy(partial.get() + o * k, partial.get() + o * k + k_out, dw + o * k_out);
+        std::copy(partial + o * k, partial + o * k + k_out, dw + o * k_out);
         if (db != nullptr) {
             db[o] = partial[m * k + o];
         }
@@ -570,6 +566,47 @@ void rows_product(const at::Tensor& a, const at::Tensor& a_bf16, const at::Tenso
         pairs.push_back({a2.data_ptr<T>(), a2.size(1), b2.data_ptr<T>(), b2.size(1), k2});
     }
     product(pairs, init, n, b.size(1), epi);
+}
+
+// The operand B of a backward's input-gradient product, packed once for all the chunks: w [O, K] as
+// [O padded, K padded] (its rows from ``keep`` on zero), in float or as bf16 pairs, and how many of its
+// rows (float) or pairs of rows (bf16) the sums run over.
+struct PackedB {
+    at::Tensor b;
+    int64_t k = 0;
+    bool bf16 = false;
+};
+
+template <typename T>
+PackedB pack_b(const at::Tensor& w, int64_t keep, bool bf16) {
+    const int64_t k = real_rows(w, false, keep);
+#if BF16_PRODUCTS
+    if constexpr (std::is_same_v<T, float>) {
+        if (bf16) {
+            return {pack_pairs(w, false, keep), (k + 1) / 2, true};
+        }
+    }
+#endif
+    return {pack<T>(w, false, keep), k, false};
+}
+
+// Rows [0, cr) of a [., lda] (or of its bf16 copy a16 where B is bf16 pairs) times B, each result
+// vector to epi(local row, column, value); in the calling thread (one chunk's task).
+template <typename T, typename Epi>
+void chunk_product(const PackedB& B, const T* a, int64_t lda, const uint16_t* a16, int64_t cr, Epi epi) {
+    const int64_t tiles = (cr + TILE_ROWS - 1) / TILE_ROWS;
+#if BF16_PRODUCTS
+    if constexpr (std::is_same_v<T, float>) {
+        if (B.bf16) {
+            const std::vector<PairBF16> pairs{
+                {reinterpret_cast<const uint32_t*>(a16), lda / 2, pairs_of(B.b), B.b.size(1), B.k}};
+            product_tiles(pairs, static_cast<const float*>(nullptr), cr, B.b.size(1) / LANES<float>, 0, tiles, epi);
+            return;
+        }
+    }
+#endif
+    const std::vector<Pair<T>> pairs{{a, lda, B.b.data_ptr<T>(), B.b.size(1), B.k}};
+    product_tiles(pairs, static_cast<const T*>(nullptr), cr, B.b.size(1) / LANES<T>, 0, tiles, epi);
 }
 
 template <typename T, typename Fn>
@@ -833,20 +870,102 @@ std::vector<at::Tensor> mlp_backward(
                 }
             });
         }
-        at::Tensor dz_bf16 = bf16 ? bf16_copy(dz) : at::Tensor();  // (the input gradients' operand)
+        // Chunks of CHUNK_ROWS points, each carried back through every layer by one thread: its weight
+        // gradients' partial sums, then its rows of dz_{i-1} = (dz_i W_i) act'(z_{i-1}) in the thread's
+        // own buffers (cached, not a pass over all the points per product). The same arithmetic per
+        // row and per chunk as layer by layer, so the same sums.
+        const int64_t chunks = std::max<int64_t>(1, (n + CHUNK_ROWS - 1) / CHUNK_ROWS);
+        std::vector<int64_t> ms(layers), ks(layers), offsets(layers + 1);
+        int64_t total = 0, widest = m_last;
+        for (int64_t i = 0; i < layers; ++i) {
+            ms[i] = saved[1 + 2 * i].size(1);
+            ks[i] = (i == 0 ? input : saved[2 + 2 * (i - 1)]).size(1);
+            widest = std::max(widest, ks[i]);
+            offsets[i] = total;
+            total += chunks * (ms[i] * ks[i] + ms[i]);
+        }
+        const int64_t ke = input.size(1);
+        offsets[layers] = total;
+        if (skip_layer >= 0) {
+            total += chunks * (ms[skip_layer] * ke + ms[skip_layer]);
+        }
+        std::unique_ptr<scalar_t[]> partial(new scalar_t[total]);  // (the rows summed are written first)
+        std::vector<PackedB> packed(layers);  // (the weights' rows from stop_from on: no input gradient)
+        for (int64_t i = last; i >= 1; --i) {
+            packed[i] = pack_b<scalar_t>(weights[i], i == last ? stop_from : -1, bf16);
+        }
+        PackedB packed_x, packed_skip;
+        if (wants_x) {
+            dx = at::zeros({rows, ke}, input.options());
+            packed_x = pack_b<scalar_t>(weights[0], last == 0 ? stop_from : -1, bf16);
+            if (skip_layer >= 0) {
+                packed_skip = pack_b<scalar_t>(*skip_weight, skip_layer == last ? stop_from : -1, bf16);
+            }
+        }
+        const scalar_t* dz_last = dz.data_ptr<scalar_t>();
+        at::parallel_for(0, chunks, 1, [&](int64_t c0, int64_t c1) {
+            const int64_t slot = CHUNK_ROWS * widest;
+            std::unique_ptr<scalar_t[]> scratch(new scalar_t[2 * slot]);
+            std::unique_ptr<uint16_t[]> scratch16(bf16 ? new uint16_t[3 * slot] : nullptr);
+            for (int64_t c = c0; c < c1; ++c) {
+                const int64_t r0 = c * CHUNK_ROWS, cr = std::min(n, r0 + CHUNK_ROWS) - r0;
+                const scalar_t* cur = dz_last + r0 * m_last;
+                const uint16_t* cur16 = nullptr;
+                if (bf16) {  // (the input gradients' operand: the last layer's dz rows as bf16)
+                    for (int64_t e = 0; e < cr * m_last; e += LANES<scalar_t>) {
+                        store_copy<scalar_t>(scratch16.get() + 2 * slot, e, loadv(cur + e));
+                    }
+                    cur16 = scratch16.get() + 2 * slot;
+                }
+                for (int64_t i = last, turn = 0; i >= 0; --i, turn ^= 1) {
+                    const int64_t m = ms[i], k = ks[i];
+                    const at::Tensor& in = i == 0 ? input : saved[2 + 2 * (i - 1)];  // h_{i-1}, padded
+                    scalar_t* pw = partial.get() + offsets[i] + c * (m * k + m);
+                    weight_partial<scalar_t>(cur, m, in.data_ptr<scalar_t>() + r0 * k, k, cr, pw, pw + m * k,
+                                             weights[i].size(0));
+                    if (i == skip_layer) {  // (its bias is the layer's)
+                        scalar_t* ps = partial.get() + offsets[layers] + c * (m * ke + m);
+                        weight_partial<scalar_t>(cur, m, input.data_ptr<scalar_t>() + r0 * ke, ke, cr, ps, nullptr,
+                                                 skip_weight->size(0));
+                    }
+                    // d x += dz_i W_i (the first layer) and dz_i S (the skip layer; both where that is the first)
+                    for (int64_t part = 0; wants_x && part < 2; ++part) {
+                        if (part == 0 ? i != 0 : i != skip_layer) {
+                            continue;
+                        }
+                        scalar_t* dxp = dx.data_ptr<scalar_t>() + r0 * ke;
+                        chunk_product<scalar_t>(part == 0 ? packed_x : packed_skip, cur, m, cur16, cr,
+                                                [&](int64_t r, int64_t col, typename VT<scalar_t>::v v) {
+                                                    storev(dxp + r * ke + col, loadv(dxp + r * ke + col) + v);
+                                                });
+                    }
+                    if (i == 0) {
+                        break;
+                    }
+                    scalar_t* next = scratch.get() + turn * slot;
+                    uint16_t* next16 = bf16 ? scratch16.get() + turn * slot : nullptr;
+                    const at::Tensor& s = saved[activation == SILU ? 1 + 2 * (i - 1) : 2 + 2 * (i - 1)];
+                    with_activation<scalar_t>(activation, [&](auto a) {
+                        chunk_product<scalar_t>(packed[i], cur, m, cur16, cr,
+                                                BackwardStore<scalar_t, decltype(a)::value>{
+                                                    next, s.data_ptr<scalar_t>() + r0 * k, k, next16});
+                    });
+                    cur = next;
+                    cur16 = next16;
+                }
+            }
+        });
         for (int64_t i = last; i >= 0; --i) {
-            const at::Tensor& in = i == 0 ? input : saved[2 + 2 * (i - 1)];  // h_{i-1}, padded
-            const int64_t m = dz.size(1), k = in.size(1);
             const int64_t o_real = weights[i].size(0), k_real = weights[i].size(1);
             at::Tensor dw = at::empty({o_real, k_real}, input.options());
             at::Tensor db = at::empty({o_real}, input.options());
-            weight_gradient<scalar_t>(dz.data_ptr<scalar_t>(), m, in.data_ptr<scalar_t>(), k, n, dw.data_ptr<scalar_t>(),
+            reduce_partials<scalar_t>(partial.get() + offsets[i], chunks, ms[i], ks[i], dw.data_ptr<scalar_t>(),
                                       db.data_ptr<scalar_t>(), o_real, k_real);
             at::Tensor ds;
-            if (i == skip_layer) {  // (its bias is the layer's: db above)
+            if (i == skip_layer) {
                 ds = at::empty({skip_weight->size(0), skip_weight->size(1)}, input.options());
-                weight_gradient<scalar_t>(dz.data_ptr<scalar_t>(), m, input.data_ptr<scalar_t>(), input.size(1), n,
-                                          ds.data_ptr<scalar_t>(), nullptr, ds.size(0), ds.size(1));
+                reduce_partials<scalar_t>(partial.get() + offsets[layers], chunks, ms[i], ke, ds.data_ptr<scalar_t>(),
+                                          nullptr, ds.size(0), ds.size(1));
             }
             if (parts.defined() && (i == 0 || i == skip_layer)) {  // whole: [x's | the time row's | hidden]
                 dw = i == 0 ? whole_gradient<scalar_t>(dw, db, at::Tensor(), parts, parts.encoded)
@@ -856,38 +975,6 @@ std::vector<at::Tensor> mlp_backward(
             }
             grads[i] = as_type(dw, whole[i].scalar_type());
             grads[layers + i] = as_type(db, whole[i].scalar_type());
-            // the input gradients read the rows before stop_from only
-            const int64_t keep = i == last && stop_from >= 0 ? stop_from : -1;
-            // d x += dz_i W_i (the first layer) and dz_i S (the skip layer; both where that is the first)
-            for (int64_t part = 0; wants_x && part < 2; ++part) {
-                if (part == 0 ? i != 0 : i != skip_layer) {
-                    continue;
-                }
-                if (!dx.defined()) {
-                    dx = at::zeros({rows, input.size(1)}, input.options());
-                }
-                scalar_t* dxp = dx.data_ptr<scalar_t>();
-                const int64_t ld = dx.size(1);
-                rows_product<scalar_t>(dz, dz_bf16, part == 0 ? weights[0] : *skip_weight, false, keep, nullptr, n,
-                                       [&](int64_t r, int64_t c, typename VT<scalar_t>::v v) {
-                                           storev(dxp + r * ld + c, loadv(dxp + r * ld + c) + v);
-                                       });
-            }
-            if (i == 0) {
-                break;
-            }
-            // dz_{i-1} = (dz_i W_i) act'(z_{i-1}), W_i as [O padded, K padded]
-            at::Tensor next = at::empty({rows, k}, input.options());  // (rows < n: all written below)
-            std::fill(next.data_ptr<scalar_t>() + n * k, next.data_ptr<scalar_t>() + rows * k, scalar_t(0));
-            at::Tensor next_bf16 = bf16 ? at::empty({rows, k}, dz_bf16.options()) : at::Tensor();
-            const at::Tensor& s = saved[activation == SILU ? 1 + 2 * (i - 1) : 2 + 2 * (i - 1)];
-            with_activation<scalar_t>(activation, [&](auto a) {
-                rows_product<scalar_t>(dz, dz_bf16, weights[i], false, keep, nullptr, n,
-                                       BackwardStore<scalar_t, decltype(a)::value>{next.data_ptr<scalar_t>(), s.data_ptr<scalar_t>(), k,
-                                                                                   bf16_data(next_bf16)});
-            });
-            dz = next;
-            dz_bf16 = next_bf16;
         }
     });
     if (wants_x) {
