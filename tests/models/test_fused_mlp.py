@@ -101,11 +101,21 @@ def test_fused_dynamics_field_matches_its_layers(cfg, rates):
         assert_match(field, x, t, 1e-12, rates=rates)
 
 
-def test_fused_fields_in_float32_agree_to_rounding():
+@pytest.mark.parametrize("seed", range(3))
+def test_fused_fields_in_float32_agree_to_rounding(seed):
+    """In float32 at the demo's sizes: f_trd (SiLU: smooth) in values and gradients, f_defo (ReLU) in
+    values. A ReLU's gradient jumps where its input crosses zero, and among 3000 points x 64 units
+    some sit within float32 rounding of zero, where the two sums' rounding picks either side (f_defo's
+    gradients are held to the layers in float64 above)."""
     cfg = make_config("cpu-fast")
-    x = torch.randn(3000, 3)
-    assert_match(randomised(DeformationField(cfg.deformation)), x, 0.4, 1e-5)
-    assert_match(randomised(DynamicsField(cfg.dynamics)), x, 0.4, 1e-5)
+    x = torch.randn(3000, 3, generator=torch.Generator().manual_seed(seed))
+    deformation = randomised(DeformationField(cfg.deformation), seed=seed)
+    ours, reference = (
+        [o.detach() for o in outputs_and_grads(deformation, x, 0.4, fused)[:3]] for fused in (True, False)
+    )
+    for a, b in zip(ours, reference, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-5 * float(b.abs().max()))
+    assert_match(randomised(DynamicsField(cfg.dynamics), seed=seed), x, 0.4, 1e-5)
 
 
 @pytest.mark.parametrize("activation", ["relu", "silu"])

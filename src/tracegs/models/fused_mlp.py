@@ -74,12 +74,14 @@ class _FusedMLP(torch.autograd.Function):
         skip_layer, activation, last_activation, _, bf16, encoded, groups, scaled_from, scale = settings
         half = len(layers) // 2
         weights, biases = list(layers[:half]), list(layers[half:])
+        save = any(ctx.needs_input_grad)  # (else the op keeps no activations)
         saved = EXTENSION.load().mlp_forward(
             x, weights, biases, skip_weight, skip_layer, activation, last_activation, bf16,
-            time_row, encoded, groups, scaled_from, scale,
+            time_row, encoded, groups, scaled_from, scale, save,
         )  # fmt: skip
         outputs = len(groups)
-        ctx.save_for_backward(skip_weight, time_row, *weights, *saved[outputs:])  # x, z and h, padded
+        if save:
+            ctx.save_for_backward(skip_weight, time_row, *weights, *saved[outputs:])  # x, each layer's z or h
         ctx.settings, ctx.layers = settings, half
         return tuple(saved[:outputs])
 

@@ -40,6 +40,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <initializer_list>
 #include <memory>
 #include <type_traits>
 #include <utility>
@@ -170,11 +171,15 @@ inline typename VT<T>::v sigmoid(typename VT<T>::v z) {
 }
 
 // act'(z) g, from z (SiLU) or h (ReLU)
+template <typename T>
+inline typename VT<T>::v silu_derivative(typename VT<T>::v g, typename VT<T>::v z, typename VT<T>::v s) {
+    return g * (s * (T(1) + z * (T(1) - s)));  // (s = sigmoid(z))
+}
+
 template <typename T, int64_t ACT>
 inline typename VT<T>::v derivative(typename VT<T>::v g, typename VT<T>::v saved) {
     if constexpr (ACT == SILU) {
-        const typename VT<T>::v s = sigmoid<T>(saved);
-        return g * (s * (T(1) + saved * (T(1) - s)));
+        return silu_derivative<T>(g, saved, sigmoid<T>(saved));
     } else if constexpr (ACT == RELU) {
         return saved > T(0) ? g : T(0);
     } else {
@@ -309,7 +314,7 @@ inline void block_row(const std::vector<P>& pairs, const typename Sum<P>::type* 
 // Tiles [t0, t1) of a row-wise product. Not inlined: with one thread at::parallel_for calls its body
 // in place, and inlined there the product's loops were compiled anew, with SiLU's constants held in
 // vector registers and the sums spilled to the stack (1.5x as long as the same code called by the
-// threads); one function serves both.
+// threads); one function serves both (the chunks' products, chunk_product).
 template <typename P, typename Epi>
 __attribute__((noinline)) void product_tiles(const std::vector<P>& pairs, const typename Sum<P>::type* init,
                                              int64_t n, int64_t vectors, int64_t t0, int64_t t1, Epi& epi) {
@@ -323,14 +328,6 @@ __attribute__((noinline)) void product_tiles(const std::vector<P>& pairs, const 
             block_row<1>(pairs, init, r, vectors, epi);
         }
     }
-}
-
-// The row-wise product over all n rows, m (padded) columns, in parallel tiles of rows.
-template <typename P, typename Epi>
-void product(const std::vector<P>& pairs, const typename Sum<P>::type* init, int64_t n, int64_t m, Epi epi) {
-    const int64_t vectors = m / LANES<typename Sum<P>::type>;
-    const int64_t tiles = (n + TILE_ROWS - 1) / TILE_ROWS;
-    at::parallel_for(0, tiles, 1, [&](int64_t t0, int64_t t1) { product_tiles(pairs, init, n, vectors, t0, t1, epi); });
 }
 
 // One chunk's share of dW = D^T In and (unless pb is null) of db = the column sums of D: rows [0, cr)
@@ -458,38 +455,54 @@ inline void store_copy(uint16_t* copy, int64_t at, typename VT<T>::v v) {
     }
 }
 
+// The forward's epilogue (the bias is in the sums): z kept where the backward reads it (``kept``: z
+// for SiLU and for the linear last layer, h for ReLU; null: nothing kept, no gradient to come), and
+// h (with its bf16 copy for the next bf16 product) for the next layer (null: the last layer's is kept).
 template <typename T, int64_t ACT>
 struct ForwardStore {
-    T* z;
+    T* kept;
     T* h;
     int64_t ld;
-    uint16_t* h_bf16;  // h as bf16, or null
+    uint16_t* h_bf16;
     void operator()(int64_t r, int64_t c, typename VT<T>::v v) {
-        if constexpr (ACT == SILU) {
-            const typename VT<T>::v a = v * sigmoid<T>(v);
-            storev(z + r * ld + c, v);
-            storev(h + r * ld + c, a);
-            store_copy<T>(h_bf16, r * ld + c, a);
-        } else if constexpr (ACT == RELU) {
-            const typename VT<T>::v a = v > T(0) ? v : T(0);
-            storev(h + r * ld + c, a);
-            store_copy<T>(h_bf16, r * ld + c, a);
+        const int64_t at = r * ld + c;
+        if constexpr (ACT == SILU || ACT == RELU) {
+            typename VT<T>::v a;
+            if constexpr (ACT == SILU) {
+                a = v * sigmoid<T>(v);
+            } else {
+                a = v > T(0) ? v : T(0);
+            }
+            if (kept != nullptr) {
+                storev(kept + at, ACT == SILU ? v : a);
+            }
+            if (h != nullptr) {
+                storev(h + at, a);
+            }
+            store_copy<T>(h_bf16, at, a);
         } else {
-            storev(z + r * ld + c, v);
+            storev(kept + at, v);
         }
     }
 };
 
 template <typename T, int64_t ACT>
-struct BackwardStore {  // dz_{i-1} = (dz_i W_i) act'_{i-1}
+struct BackwardStore {  // dz_{i-1} = (dz_i W_i) act'(z_{i-1}), from z and its sigmoid (SiLU) or h (ReLU)
     T* out;
     const T* saved;
+    const T* sig;  // sigmoid(z_{i-1}) (SiLU)
     int64_t ld;
     uint16_t* out_bf16;  // dz_{i-1} as bf16, or null
     void operator()(int64_t r, int64_t c, typename VT<T>::v v) {
-        const typename VT<T>::v d = derivative<T, ACT>(v, loadv(saved + r * ld + c));
-        storev(out + r * ld + c, d);
-        store_copy<T>(out_bf16, r * ld + c, d);
+        const int64_t at = r * ld + c;
+        typename VT<T>::v d;
+        if constexpr (ACT == SILU) {
+            d = silu_derivative<T>(v, loadv(saved + at), loadv(sig + at));
+        } else {
+            d = derivative<T, ACT>(v, loadv(saved + at));
+        }
+        storev(out + at, d);
+        store_copy<T>(out_bf16, at, d);
     }
 };
 
@@ -529,6 +542,10 @@ inline uint16_t* bf16_data(at::Tensor& t) {
     return t.defined() ? reinterpret_cast<uint16_t*>(t.data_ptr<at::BFloat16>()) : nullptr;
 }
 
+inline const uint16_t* bf16_data_const(const at::Tensor& t) {
+    return reinterpret_cast<const uint16_t*>(t.data_ptr<at::BFloat16>());
+}
+
 // The rows of B = w^T (``transpose``) or w (its rows from ``keep`` on left zero) that are not padding:
 // the products' sums stop there (a head's 3 outputs, not 16; a first layer's 39 encoded inputs, not 48).
 inline int64_t real_rows(const at::Tensor& w, bool transpose, int64_t keep) {
@@ -536,41 +553,10 @@ inline int64_t real_rows(const at::Tensor& w, bool transpose, int64_t keep) {
     return keep >= 0 && keep < rows ? keep : rows;
 }
 
-// out = a b (+ init) by rows, each result vector to epi: float products, or bf16 ones where ``a_bf16``
-// (a's bf16 copy) is defined, b then packed as pairs (``pack_pairs``) from ``w`` as ``pack`` would.
-template <typename T, typename Epi>
-void rows_product(const at::Tensor& a, const at::Tensor& a_bf16, const at::Tensor& w, bool transpose, int64_t keep,
-                  const T* init, int64_t n, Epi epi, const at::Tensor& a2 = {}, const at::Tensor& a2_bf16 = {},
-                  const at::Tensor& w2 = {}) {
-    const int64_t k = real_rows(w, transpose, keep), k2 = w2.defined() ? real_rows(w2, transpose, -1) : 0;
-#if BF16_PRODUCTS
-    if constexpr (std::is_same_v<T, float>) {
-        if (a_bf16.defined()) {
-            const at::Tensor b = pack_pairs(w, transpose, keep);
-            std::vector<PairBF16> pairs{{pairs_of(a_bf16), a.size(1) / 2, pairs_of(b), b.size(1), (k + 1) / 2}};
-            at::Tensor b2;
-            if (w2.defined()) {
-                b2 = pack_pairs(w2, transpose);
-                pairs.push_back({pairs_of(a2_bf16), a2.size(1) / 2, pairs_of(b2), b2.size(1), (k2 + 1) / 2});
-            }
-            product(pairs, init, n, b.size(1), epi);
-            return;
-        }
-    }
-#endif
-    const at::Tensor b = pack<T>(w, transpose, keep);
-    std::vector<Pair<T>> pairs{{a.data_ptr<T>(), a.size(1), b.data_ptr<T>(), b.size(1), k}};
-    at::Tensor b2;
-    if (w2.defined()) {
-        b2 = pack<T>(w2, transpose);
-        pairs.push_back({a2.data_ptr<T>(), a2.size(1), b2.data_ptr<T>(), b2.size(1), k2});
-    }
-    product(pairs, init, n, b.size(1), epi);
-}
-
-// The operand B of a backward's input-gradient product, packed once for all the chunks: w [O, K] as
-// [O padded, K padded] (its rows from ``keep`` on zero), in float or as bf16 pairs, and how many of its
-// rows (float) or pairs of rows (bf16) the sums run over.
+// A weight w [O, K] packed once as a product's operand B for every chunk: transposed, [K padded,
+// O padded] (the forward's), or as it is, [O padded, K padded] with its rows from ``keep`` on zero (the
+// input gradients'), in float or as bf16 pairs; and how many of its rows (float) or pairs of rows
+// (bf16) the sums run over.
 struct PackedB {
     at::Tensor b;
     int64_t k = 0;
@@ -578,35 +564,52 @@ struct PackedB {
 };
 
 template <typename T>
-PackedB pack_b(const at::Tensor& w, int64_t keep, bool bf16) {
-    const int64_t k = real_rows(w, false, keep);
+PackedB pack_b(const at::Tensor& w, bool transpose, int64_t keep, bool bf16) {
+    const int64_t k = real_rows(w, transpose, keep);
 #if BF16_PRODUCTS
     if constexpr (std::is_same_v<T, float>) {
         if (bf16) {
-            return {pack_pairs(w, false, keep), (k + 1) / 2, true};
+            return {pack_pairs(w, transpose, keep), (k + 1) / 2, true};
         }
     }
 #endif
-    return {pack<T>(w, false, keep), k, false};
+    return {pack<T>(w, transpose, keep), k, false};
 }
 
-// Rows [0, cr) of a [., lda] (or of its bf16 copy a16 where B is bf16 pairs) times B, each result
-// vector to epi(local row, column, value); in the calling thread (one chunk's task).
+// One operand pair of a chunk's product: A's rows from the chunk's first, in float (a) or as bf16
+// (a16, where B is bf16 pairs), row stride lda; and B.
+template <typename T>
+struct Operand {
+    const PackedB* b;
+    const T* a;
+    const uint16_t* a16;
+    int64_t lda;
+};
+
+// Rows [0, cr) of the sum over ``ops`` of A B (+ init, a row), each result vector to epi(row within the
+// chunk, column, value); in the calling thread (one chunk's task).
 template <typename T, typename Epi>
-void chunk_product(const PackedB& B, const T* a, int64_t lda, const uint16_t* a16, int64_t cr, Epi epi) {
+void chunk_product(std::initializer_list<Operand<T>> ops, const T* init, int64_t cr, Epi epi) {
     const int64_t tiles = (cr + TILE_ROWS - 1) / TILE_ROWS;
+    const PackedB& first = *ops.begin()->b;
 #if BF16_PRODUCTS
     if constexpr (std::is_same_v<T, float>) {
-        if (B.bf16) {
-            const std::vector<PairBF16> pairs{
-                {reinterpret_cast<const uint32_t*>(a16), lda / 2, pairs_of(B.b), B.b.size(1), B.k}};
-            product_tiles(pairs, static_cast<const float*>(nullptr), cr, B.b.size(1) / LANES<float>, 0, tiles, epi);
+        if (first.bf16) {
+            std::vector<PairBF16> pairs;
+            for (const Operand<T>& op : ops) {
+                pairs.push_back({reinterpret_cast<const uint32_t*>(op.a16), op.lda / 2, pairs_of(op.b->b),
+                                 op.b->b.size(1), op.b->k});
+            }
+            product_tiles(pairs, init, cr, first.b.size(1) / LANES<float>, 0, tiles, epi);
             return;
         }
     }
 #endif
-    const std::vector<Pair<T>> pairs{{a, lda, B.b.data_ptr<T>(), B.b.size(1), B.k}};
-    product_tiles(pairs, static_cast<const T*>(nullptr), cr, B.b.size(1) / LANES<T>, 0, tiles, epi);
+    std::vector<Pair<T>> pairs;
+    for (const Operand<T>& op : ops) {
+        pairs.push_back({op.a, op.lda, op.b->b.template data_ptr<T>(), op.b->b.size(1), op.b->k});
+    }
+    product_tiles(pairs, init, cr, first.b.size(1) / LANES<T>, 0, tiles, epi);
 }
 
 template <typename T, typename Fn>
@@ -704,8 +707,9 @@ Parts make_parts(const c10::optional<at::Tensor>& time_row, int64_t ex, int64_t 
     return parts;
 }
 
-// [the outputs (one per group), x padded, then per layer z_i and h_i (padded; for ReLU z_i is h_i,
-// for the linear head both are its output)]. The last layer's outputs in ``groups`` of consecutive
+// [the outputs (one per group), then with ``save`` (a gradient to come) x padded and per layer what
+// the backward reads, padded: z for SiLU (h is recomputed from it) and for the linear last layer, h for
+// ReLU]. The last layer's outputs in ``groups`` of consecutive
 // columns (each its own tensor, contiguous), those from ``scaled_from`` on (>= 0) as r |r| / scale
 // (f_trd's rates, dynamics.py's scale_acceleration).
 std::vector<at::Tensor> mlp_forward(
@@ -721,7 +725,8 @@ std::vector<at::Tensor> mlp_forward(
     int64_t encoded,
     std::vector<int64_t> groups,
     int64_t scaled_from,
-    double scale) {
+    double scale,
+    bool save) {
     const int64_t layers = int64_t(weights.size());
     TORCH_CHECK(layers > 0 && int64_t(biases.size()) == layers, "mlp_forward: one bias per weight");
     TORCH_CHECK(!bf16 || (BF16_PRODUCTS && x.scalar_type() == at::kFloat),
@@ -750,38 +755,72 @@ std::vector<at::Tensor> mlp_forward(
             }
         }
         const at::Tensor input = pack<scalar_t>(x, false);  // [N padded to PAD rows, E padded]
-        const int64_t rows = input.size(0);
+        const int64_t rows = input.size(0), ke = input.size(1), last = layers - 1;
         saved.push_back(input);
         const at::Tensor input_bf16 = bf16 ? bf16_copy(input) : at::Tensor();
-        at::Tensor h = input;
-        at::Tensor h_bf16 = input_bf16;
+        // the layers' operands, packed once; what the backward reads (``kept``): z for SiLU and the linear
+        // last layer, h for ReLU; without a gradient to come only the last layer's
+        std::vector<PackedB> packed(layers);
+        std::vector<at::Tensor> bias(layers), kept(layers);
+        std::vector<int64_t> acts(layers);
+        int64_t widest = 0;
         for (int64_t i = 0; i < layers; ++i) {
             TORCH_CHECK(weights[i].size(1) == (i == 0 ? x.size(1) : weights[i - 1].size(0)),
                         "mlp_forward: layer ", i, " does not take the previous layer's width");
-            const at::Tensor b = pad_vector<scalar_t>(biases[i]);
+            packed[i] = pack_b<scalar_t>(weights[i], true, -1, bf16);
+            bias[i] = pad_vector<scalar_t>(biases[i]);
+            acts[i] = activates(i, layers, last_activation) ? activation : NONE;
             const int64_t m = padded(weights[i].size(0));
-            const int64_t act = activates(i, layers, last_activation) ? activation : NONE;
-            at::Tensor z = at::empty({rows, m}, input.options());
-            at::Tensor out = act == SILU ? at::empty_like(z) : z;
-            at::Tensor out_bf16 = bf16 && i < layers - 1 ? at::empty({rows, m}, z.options().dtype(at::kBFloat16)) : at::Tensor();
-            // the padding rows stay zero
-            std::fill(z.data_ptr<scalar_t>() + n * m, z.data_ptr<scalar_t>() + rows * m, scalar_t(0));
-            if (act == SILU) {  // (else out is z)
-                std::fill(out.data_ptr<scalar_t>() + n * m, out.data_ptr<scalar_t>() + rows * m, scalar_t(0));
+            widest = std::max(widest, m);
+            if (save || i == last) {
+                kept[i] = at::empty({rows, m}, input.options());
+                std::fill(kept[i].data_ptr<scalar_t>() + n * m, kept[i].data_ptr<scalar_t>() + rows * m, scalar_t(0));
             }
-            const bool skips = i == skip_layer;  // (layer i also takes x S^T)
-            with_activation<scalar_t>(act, [&](auto a) {
-                rows_product<scalar_t>(h, h_bf16, weights[i], true, -1, b.data_ptr<scalar_t>(), n,
-                                       ForwardStore<scalar_t, decltype(a)::value>{z.data_ptr<scalar_t>(), out.data_ptr<scalar_t>(), m,
-                                                                                  bf16_data(out_bf16)},
-                                       skips ? input : at::Tensor(), skips ? input_bf16 : at::Tensor(),
-                                       skips ? *skip_weight : at::Tensor());
-            });
-            saved.push_back(z);
-            saved.push_back(out);
-            h = out;
-            h_bf16 = out_bf16;
         }
+        const PackedB packed_skip = skip_layer >= 0 ? pack_b<scalar_t>(*skip_weight, true, -1, bf16) : PackedB{};
+        const int64_t m_last = kept[last].size(1);
+        at::Tensor out_h;  // a SiLU last layer's output (its z is kept)
+        if (acts[last] == SILU) {
+            out_h = at::zeros({rows, m_last}, input.options());
+        }
+        // Chunks of CHUNK_ROWS points, each carried through every layer by one thread: a layer's h in the
+        // thread's own buffers for the next (cached, not a pass over all the points a layer), and the
+        // same chunks as the backward's (each thread then finds its rows in its own cache).
+        const int64_t chunks = std::max<int64_t>(1, (n + CHUNK_ROWS - 1) / CHUNK_ROWS);
+        at::parallel_for(0, chunks, 1, [&](int64_t c0, int64_t c1) {
+            const int64_t slot = CHUNK_ROWS * widest;
+            std::unique_ptr<scalar_t[]> scratch(new scalar_t[2 * slot]);
+            std::unique_ptr<uint16_t[]> scratch16(bf16 ? new uint16_t[2 * slot] : nullptr);
+            for (int64_t c = c0; c < c1; ++c) {
+                const int64_t r0 = c * CHUNK_ROWS, cr = std::min(n, r0 + CHUNK_ROWS) - r0;
+                const Operand<scalar_t> x_rows{nullptr, input.data_ptr<scalar_t>() + r0 * ke,
+                                               bf16 ? bf16_data_const(input_bf16) + r0 * ke : nullptr, ke};
+                Operand<scalar_t> cur = x_rows;
+                for (int64_t i = 0, turn = 0; i < layers; ++i, turn ^= 1) {
+                    const int64_t m = packed[i].b.size(1);
+                    scalar_t* keep = kept[i].defined() ? kept[i].data_ptr<scalar_t>() + r0 * m : nullptr;
+                    scalar_t* h = i < last ? scratch.get() + turn * slot
+                                           : (out_h.defined() ? out_h.data_ptr<scalar_t>() + r0 * m : nullptr);
+                    uint16_t* h16 = bf16 && i < last ? scratch16.get() + turn * slot : nullptr;
+                    cur.b = &packed[i];
+                    with_activation<scalar_t>(acts[i], [&](auto a) {
+                        const ForwardStore<scalar_t, decltype(a)::value> store{keep, h, m, h16};
+                        if (i == skip_layer) {  // (layer i also takes x S^T)
+                            Operand<scalar_t> skip = x_rows;
+                            skip.b = &packed_skip;
+                            chunk_product<scalar_t>({cur, skip}, bias[i].data_ptr<scalar_t>(), cr, store);
+                        } else {
+                            chunk_product<scalar_t>({cur}, bias[i].data_ptr<scalar_t>(), cr, store);
+                        }
+                    });
+                    cur = {nullptr, h, h16, m};
+                }
+            }
+        });
+        if (save) {
+            saved.insert(saved.end(), kept.begin(), kept.end());
+        }
+        const at::Tensor h = out_h.defined() ? out_h : kept[last];  // (the last layer's output)
         // the outputs by groups, the scaled ones as r |r| / scale (as ATen: the product, then the division)
         const scalar_t* hp = h.data_ptr<scalar_t>();
         const int64_t ld = h.size(1);
@@ -820,7 +859,7 @@ std::vector<at::Tensor> mlp_backward(
     int64_t scaled_from,
     double scale) {
     const int64_t layers = int64_t(weights.size());
-    TORCH_CHECK(int64_t(saved.size()) == 1 + 2 * layers, "mlp_backward: saved tensors do not match");
+    TORCH_CHECK(int64_t(saved.size()) == 1 + layers, "mlp_backward: saved tensors do not match");
     TORCH_CHECK(!grads_out.empty(), "mlp_backward: no output gradients");
     const at::Tensor& input = saved[0];
     TORCH_CHECK(!bf16 || (BF16_PRODUCTS && input.scalar_type() == at::kFloat),
@@ -836,11 +875,11 @@ std::vector<at::Tensor> mlp_backward(
         // dz of the last layer: the incoming gradients, padded (the scaled outputs' times 2 |r| / scale),
         // times its activation's derivative
         const int64_t last = layers - 1;
-        const int64_t m_last = saved[1 + 2 * last].size(1);
+        const int64_t m_last = saved[1 + last].size(1);
         at::Tensor dz = at::empty({rows, m_last}, input.options());
         {
             scalar_t* p = dz.data_ptr<scalar_t>();
-            const scalar_t* raw = saved[1 + 2 * last].data_ptr<scalar_t>();
+            const scalar_t* raw = saved[1 + last].data_ptr<scalar_t>();
             const scalar_t twice = scalar_t(2) / scalar_t(scale);
             std::fill(p, p + rows * m_last, scalar_t(0));
             int64_t c0 = 0;
@@ -860,7 +899,7 @@ std::vector<at::Tensor> mlp_backward(
             }
         }
         if (activates(last, layers, last_activation)) {
-            const at::Tensor& s = saved[activation == SILU ? 1 + 2 * last : 2 + 2 * last];
+            const at::Tensor& s = saved[1 + last];  // (z, or h for ReLU)
             with_activation<scalar_t>(activation, [&](auto a) {
                 constexpr int64_t L = LANES<scalar_t>;
                 scalar_t* p = dz.data_ptr<scalar_t>();
@@ -878,8 +917,8 @@ std::vector<at::Tensor> mlp_backward(
         std::vector<int64_t> ms(layers), ks(layers), offsets(layers + 1);
         int64_t total = 0, widest = m_last;
         for (int64_t i = 0; i < layers; ++i) {
-            ms[i] = saved[1 + 2 * i].size(1);
-            ks[i] = (i == 0 ? input : saved[2 + 2 * (i - 1)]).size(1);
+            ms[i] = saved[1 + i].size(1);
+            ks[i] = saved[i].size(1);  // (x, or the previous layer's z or h)
             widest = std::max(widest, ks[i]);
             offsets[i] = total;
             total += chunks * (ms[i] * ks[i] + ms[i]);
@@ -892,14 +931,14 @@ std::vector<at::Tensor> mlp_backward(
         std::unique_ptr<scalar_t[]> partial(new scalar_t[total]);  // (the rows summed are written first)
         std::vector<PackedB> packed(layers);  // (the weights' rows from stop_from on: no input gradient)
         for (int64_t i = last; i >= 1; --i) {
-            packed[i] = pack_b<scalar_t>(weights[i], i == last ? stop_from : -1, bf16);
+            packed[i] = pack_b<scalar_t>(weights[i], false, i == last ? stop_from : -1, bf16);
         }
         PackedB packed_x, packed_skip;
         if (wants_x) {
             dx = at::zeros({rows, ke}, input.options());
-            packed_x = pack_b<scalar_t>(weights[0], last == 0 ? stop_from : -1, bf16);
+            packed_x = pack_b<scalar_t>(weights[0], false, last == 0 ? stop_from : -1, bf16);
             if (skip_layer >= 0) {
-                packed_skip = pack_b<scalar_t>(*skip_weight, skip_layer == last ? stop_from : -1, bf16);
+                packed_skip = pack_b<scalar_t>(*skip_weight, false, skip_layer == last ? stop_from : -1, bf16);
             }
         }
         const scalar_t* dz_last = dz.data_ptr<scalar_t>();
@@ -907,6 +946,8 @@ std::vector<at::Tensor> mlp_backward(
             const int64_t slot = CHUNK_ROWS * widest;
             std::unique_ptr<scalar_t[]> scratch(new scalar_t[2 * slot]);
             std::unique_ptr<uint16_t[]> scratch16(bf16 ? new uint16_t[3 * slot] : nullptr);
+            // a SiLU layer's h and sigmoid, from its kept z (the forward keeps z only)
+            std::unique_ptr<scalar_t[]> recomputed(activation == SILU && layers > 1 ? new scalar_t[2 * slot] : nullptr);
             for (int64_t c = c0; c < c1; ++c) {
                 const int64_t r0 = c * CHUNK_ROWS, cr = std::min(n, r0 + CHUNK_ROWS) - r0;
                 const scalar_t* cur = dz_last + r0 * m_last;
@@ -919,10 +960,20 @@ std::vector<at::Tensor> mlp_backward(
                 }
                 for (int64_t i = last, turn = 0; i >= 0; --i, turn ^= 1) {
                     const int64_t m = ms[i], k = ks[i];
-                    const at::Tensor& in = i == 0 ? input : saved[2 + 2 * (i - 1)];  // h_{i-1}, padded
+                    // h_{i-1} (padded): x, kept (ReLU), or z sigmoid(z) from the kept z (SiLU), as the forward
+                    const scalar_t* in = saved[i].data_ptr<scalar_t>() + r0 * k;
+                    scalar_t* sig = recomputed.get();
+                    if (i > 0 && activation == SILU) {
+                        scalar_t* h = recomputed.get() + slot;
+                        for (int64_t e = 0; e < cr * k; e += LANES<scalar_t>) {
+                            const typename VT<scalar_t>::v z = loadv(in + e), sz = sigmoid<scalar_t>(z);
+                            storev(sig + e, sz);
+                            storev(h + e, z * sz);
+                        }
+                        in = h;
+                    }
                     scalar_t* pw = partial.get() + offsets[i] + c * (m * k + m);
-                    weight_partial<scalar_t>(cur, m, in.data_ptr<scalar_t>() + r0 * k, k, cr, pw, pw + m * k,
-                                             weights[i].size(0));
+                    weight_partial<scalar_t>(cur, m, in, k, cr, pw, pw + m * k, weights[i].size(0));
                     if (i == skip_layer) {  // (its bias is the layer's)
                         scalar_t* ps = partial.get() + offsets[layers] + c * (m * ke + m);
                         weight_partial<scalar_t>(cur, m, input.data_ptr<scalar_t>() + r0 * ke, ke, cr, ps, nullptr,
@@ -934,7 +985,8 @@ std::vector<at::Tensor> mlp_backward(
                             continue;
                         }
                         scalar_t* dxp = dx.data_ptr<scalar_t>() + r0 * ke;
-                        chunk_product<scalar_t>(part == 0 ? packed_x : packed_skip, cur, m, cur16, cr,
+                        const Operand<scalar_t> dz_rows{part == 0 ? &packed_x : &packed_skip, cur, cur16, m};
+                        chunk_product<scalar_t>({dz_rows}, nullptr, cr,
                                                 [&](int64_t r, int64_t col, typename VT<scalar_t>::v v) {
                                                     storev(dxp + r * ke + col, loadv(dxp + r * ke + col) + v);
                                                 });
@@ -944,11 +996,10 @@ std::vector<at::Tensor> mlp_backward(
                     }
                     scalar_t* next = scratch.get() + turn * slot;
                     uint16_t* next16 = bf16 ? scratch16.get() + turn * slot : nullptr;
-                    const at::Tensor& s = saved[activation == SILU ? 1 + 2 * (i - 1) : 2 + 2 * (i - 1)];
+                    const scalar_t* z = saved[i].data_ptr<scalar_t>() + r0 * k;  // (z, or h for ReLU)
                     with_activation<scalar_t>(activation, [&](auto a) {
-                        chunk_product<scalar_t>(packed[i], cur, m, cur16, cr,
-                                                BackwardStore<scalar_t, decltype(a)::value>{
-                                                    next, s.data_ptr<scalar_t>() + r0 * k, k, next16});
+                        chunk_product<scalar_t>({{&packed[i], cur, cur16, m}}, nullptr, cr,
+                                                BackwardStore<scalar_t, decltype(a)::value>{next, z, sig, k, next16});
                     });
                     cur = next;
                     cur16 = next16;
