@@ -198,6 +198,26 @@ def test_time_row_and_scaled_output_groups_match_their_layers_and_finite_differe
     assert torch.autograd.gradcheck(fused, inputs)
 
 
+def test_without_a_gradient_to_come_the_op_keeps_no_activations():
+    """f_trd's second query runs under no_grad: the op then keeps only its output (and gives the same
+    values as when it keeps every layer's z or h for a backward)."""
+    g = torch.Generator().manual_seed(0)
+    weights = [torch.randn(64, 39, generator=g) * 0.2, torch.randn(9, 64, generator=g) * 0.2]
+    biases = [torch.randn(64, generator=g), torch.randn(9, generator=g)]
+    x = torch.randn(300, 39, generator=g)
+    ops = fused_mlp.EXTENSION.load()
+    silu, linear_last, bf16, time_row, scaled_from, scale = 1, False, False, None, -1, 1.0
+    args = (x, weights, biases, None, -1, silu, linear_last, bf16, time_row, 0, [9], scaled_from, scale)
+    kept, nothing = ops.mlp_forward(*args, True), ops.mlp_forward(*args, False)
+    assert len(kept) == 1 + 1 + 2 and len(nothing) == 1 + 1  # [output, x, each layer's z or h] / [output, x]
+    assert torch.equal(kept[0], nothing[0])
+    for p in (*weights, *biases):
+        p.requires_grad_()
+    with torch.no_grad():
+        quiet = fused_mlp.fused_mlp(x, weights, biases, "silu")
+    assert torch.equal(quiet, fused_mlp.fused_mlp(x, weights, biases, "silu").detach())
+
+
 def test_where_the_fused_path_applies():
     x = torch.randn(10, 3)
     assert fused_mlp.applies(x)

@@ -71,10 +71,9 @@ def _vector_bytes() -> int:
 class _FusedMLP(torch.autograd.Function):
     @staticmethod
     def forward(ctx, x, skip_weight, time_row, settings, *layers):
-        skip_layer, activation, last_activation, _, bf16, encoded, groups, scaled_from, scale = settings
+        skip_layer, activation, last_activation, _, bf16, encoded, groups, scaled_from, scale, save = settings
         half = len(layers) // 2
         weights, biases = list(layers[:half]), list(layers[half:])
-        save = any(ctx.needs_input_grad)  # (else the op keeps no activations)
         saved = EXTENSION.load().mlp_forward(
             x, weights, biases, skip_weight, skip_layer, activation, last_activation, bf16,
             time_row, encoded, groups, scaled_from, scale, save,
@@ -88,7 +87,7 @@ class _FusedMLP(torch.autograd.Function):
     @staticmethod
     @torch.autograd.function.once_differentiable  # (no second derivatives: a clear error, not zeros)
     def backward(ctx, *grads_out):
-        skip_layer, activation, last_activation, stop_from, bf16, encoded, _, scaled_from, scale = (
+        skip_layer, activation, last_activation, stop_from, bf16, encoded, _, scaled_from, scale, _ = (
             ctx.settings
         )
         skip_weight, time_row, *rest = ctx.saved_tensors
@@ -129,6 +128,9 @@ def fused_mlp(
     autocast the products are bf16's (``bf16_products``)."""
     skip_layer, skip_weight = (-1, None) if skip is None else skip
     outputs = (weights[-1].shape[0],) if groups is None else tuple(groups)
+    tensors = (x, skip_weight, *weights, *biases)
+    # without a gradient to come (f_trd's second query, under no_grad) the op keeps no activations
+    save = torch.is_grad_enabled() and any(t is not None and t.requires_grad for t in tensors)
     settings = (
         skip_layer,
         ACTIVATION_CODES[activation],
@@ -139,6 +141,7 @@ def fused_mlp(
         outputs,
         -1 if scaled_from is None else scaled_from,
         float(scale),
+        save,
     )
     out = _FusedMLP.apply(x.contiguous(), skip_weight, time_row, settings, *weights, *biases)
     return out[0] if groups is None else out
