@@ -346,6 +346,52 @@ def test_bf16_products_match_their_float64_emulation(widths, activation, skip_la
     assert float((plain - out.detach()).abs().max()) > 1e-3 * float(plain.abs().max())
 
 
+@pytest.mark.skipif(not fused_mlp.bf16_products(), reason="no bf16 products on this CPU or build")
+def test_bf16_products_with_a_time_row_match_their_float64_emulation():
+    """Under bf16 autocast, the first and the skip layer on [x, a time row] (whole weights, outputs by
+    groups): the time row's product is folded into the biases in float, not rounded to bf16, so the op
+    equals the float64 emulation of the x part's MLP with those biases; the whole weights' gradients
+    hold the time columns' as the bias gradient times the row."""
+    g = torch.Generator().manual_seed(0)
+
+    def param(*shape):
+        return (0.3 * torch.randn(*shape, generator=g)).requires_grad_()
+
+    ex, et, n = 39, 13, 301
+    weights = [param(64, ex + et), param(64, 64), param(64, ex + et + 64), param(9, 64)]
+    biases = [param(64), param(64), param(64), param(9)]
+    x, row = torch.randn(n, ex, generator=g).requires_grad_(), torch.randn(1, et, generator=g)
+    grad = torch.randn(n, 9, generator=g)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        outs = fused_mlp.fused_mlp(x, weights, biases, "silu", skip=(2, None), time_row=row, groups=(3, 6))
+    torch.cat(outs, dim=1).backward(grad)
+    w64 = [w.detach().double() for w in weights]
+    t64 = row.double()[0]
+    folded = [b.detach().double() for b in biases]
+    folded[0] = folded[0] + w64[0][:, ex:] @ t64
+    folded[2] = folded[2] + w64[2][:, ex : ex + et] @ t64
+    parts = [w64[0][:, :ex], w64[1], w64[2][:, ex + et :], w64[3]]
+    skip = (2, w64[2][:, :ex])
+    out, *rest = _bf16_reference(x.detach().double(), parts, folded, "silu", False, skip, grad.double())
+    d_w, d_b, d_skip, d_x = rest[:4], rest[4:8], rest[8], rest[9]
+    time_columns = [torch.outer(d_b[i], t64) for i in (0, 2)]
+    reference = [
+        out,
+        torch.cat([d_w[0], time_columns[0]], dim=1),
+        d_w[1],
+        torch.cat([d_skip, time_columns[1], d_w[2]], dim=1),
+        d_w[3],
+        *d_b,
+        d_x,
+    ]
+    ours = [torch.cat(outs, dim=1).detach(), *[p.grad for p in (*weights, *biases, x)]]
+    # (d x comes through three bf16 roundings of dz and two products: a dz that rounds the other way
+    # from a float32 rather than a float64 value moves it by ~4e-4 of its largest)
+    tolerances = [1e-4] * (len(reference) - 1) + [1e-3]
+    for a, b, tolerance in zip(ours, reference, tolerances, strict=True):
+        torch.testing.assert_close(a.double(), b, rtol=0, atol=tolerance * float(b.abs().max()))
+
+
 def test_second_derivatives_are_refused_not_wrong():
     w = torch.randn(4, 3, dtype=torch.float64, requires_grad=True)
     b = torch.zeros(4, dtype=torch.float64, requires_grad=True)
