@@ -25,10 +25,9 @@ from __future__ import annotations
 import argparse
 import ctypes
 import ctypes.util
+import functools
 import json
-import os
 import resource
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -37,7 +36,7 @@ import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils.flop_counter import FlopCounterMode
 
-from tracegs.cpp import ISA_ENVIRONMENTS
+from tracegs.cpp import ISA_ENVIRONMENTS, json_of_process_held_to
 from tracegs.models import deformation, encoding, fused_mlp
 from tracegs.physics import fused
 from tracegs.results import make_record, write_record
@@ -92,11 +91,9 @@ def fields_step(model, t_prime: float, t: float, weights: dict[str, torch.Tensor
         p.grad = None
 
 
-_PARAMETERS: dict[int, list[torch.Tensor]] = {}
-
-
+@functools.cache
 def _parameters(model) -> list[torch.Tensor]:
-    return _PARAMETERS.setdefault(id(model), list(model.parameters()))
+    return list(model.parameters())
 
 
 GEMMS = {torch.ops.aten.mm.default, torch.ops.aten.addmm.default, torch.ops.aten.bmm.default}
@@ -241,12 +238,7 @@ def main() -> None:
         # an AVX2-only CPU runs the fields in float32 (bf16 without hardware dot products is ~100x slower)
         fields = ["fp32"] if isa == "avx2" else args.fields
         command = [sys.executable, __file__, "--run", str(args.run), "--fields", *fields, "--rows-only"]
-        child = subprocess.run(
-            command, env={**os.environ, **ISA_ENVIRONMENTS[isa]}, capture_output=True, text=True
-        )
-        if child.returncode != 0:
-            raise SystemExit(f"fields_floor ({isa}) failed:\n{child.stderr}")
-        rows += [{"isa": isa, **row} for row in json.loads(child.stdout.strip().splitlines()[-1])]
+        rows += [{"isa": isa, **row} for row in json_of_process_held_to(isa, command)]
     for row in rows:
         print(row)
     if args.json:

@@ -13,6 +13,7 @@ falls back to its pure-PyTorch path.
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import platform
 import shutil
@@ -58,6 +59,19 @@ ISA_ENVIRONMENTS = {
 """Environment variables that hold a process to an instruction set, for benchmarks (``--isa``): this
 CPU's own, or an AVX2-only CPU's code paths (ATen's kernels, oneDNN, MKL and the extensions, built
 for x86-64-v3) as an AVX2 laptop runs them. They act at start-up: set them for a new process."""
+
+
+def json_of_process_held_to(isa: str, argv: list[str]):
+    """Run ``argv`` (a Python benchmark) in a new process held to ``isa`` (``ISA_ENVIRONMENTS``) and
+    return the JSON value it prints last; its earlier output is echoed. A failure raises
+    RuntimeError with the end of its stderr."""
+    child = subprocess.run(argv, env={**os.environ, **ISA_ENVIRONMENTS[isa]}, capture_output=True, text=True)
+    if child.returncode != 0:
+        raise RuntimeError(f"{' '.join(argv[:3])} (held to {isa}) failed:\n{child.stderr[-2000:]}")
+    *earlier, last = child.stdout.strip().splitlines()
+    if earlier:
+        print("\n".join(earlier), flush=True)
+    return json.loads(last)
 
 
 def cpu_tag() -> str:

@@ -13,10 +13,8 @@ import ctypes
 import gc
 import json
 import math
-import os
 import resource
 import statistics
-import subprocess
 import sys
 import threading
 import time
@@ -24,7 +22,7 @@ from pathlib import Path
 
 import torch
 
-from ..cpp import ISA_ENVIRONMENTS
+from ..cpp import ISA_ENVIRONMENTS, json_of_process_held_to
 from ..render.random_scene import random_scene
 from ..render.rendering import available_backends, rasterize
 from ..results import make_record, write_record
@@ -204,16 +202,7 @@ def _records_of_child(isa: str, args: dict) -> list[dict]:
         "import json, sys; from tracegs.bench.raster import run_raster_bench; "
         "print(json.dumps(run_raster_bench(**json.loads(sys.argv[1]))))"
     )
-    child = subprocess.run(
-        [sys.executable, "-c", code, json.dumps(args)],
-        env={**os.environ, **ISA_ENVIRONMENTS[isa]},
-        capture_output=True,
-        text=True,
-    )
-    if child.returncode != 0:
-        raise RuntimeError(f"tracegs bench raster (--isa {isa}) failed:\n{child.stderr[-2000:]}")
-    print(child.stdout.rsplit("\n", 2)[0], flush=True)  # (its progress lines)
-    return json.loads(child.stdout.strip().splitlines()[-1])
+    return json_of_process_held_to(isa, [sys.executable, "-c", code, json.dumps(args)])
 
 
 def _write(records: list[dict], json_path: str | Path, device: torch.device, isas: tuple[str, ...]) -> None:

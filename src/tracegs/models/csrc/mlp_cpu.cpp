@@ -73,7 +73,10 @@ constexpr int RB = 6, VB = 2, OB = 4, GB = 2;
 #endif
 constexpr int64_t PAD = 16;           // widths padded to a multiple of this (of every vector's lanes)
 constexpr int64_t TILE_ROWS = 32;     // rows per parallel task of the row-wise products
-constexpr int64_t CHUNK_ROWS = 256;   // rows per partial sum of the weight gradients
+constexpr int64_t CHUNK_ROWS = 256;   // rows a thread carries through every layer; a partial sum of the weight gradients
+
+// The forward's and the backward's chunks of points (the same ones: a thread finds its rows in its cache).
+inline int64_t chunks_of(int64_t n) { return std::max<int64_t>(1, (n + CHUNK_ROWS - 1) / CHUNK_ROWS); }
 
 template <typename T>
 struct VT;
@@ -538,10 +541,6 @@ inline const uint32_t* pairs_of(const at::Tensor& t) {
     return reinterpret_cast<const uint32_t*>(t.data_ptr<at::BFloat16>());
 }
 
-inline uint16_t* bf16_data(at::Tensor& t) {
-    return t.defined() ? reinterpret_cast<uint16_t*>(t.data_ptr<at::BFloat16>()) : nullptr;
-}
-
 inline const uint16_t* bf16_data_const(const at::Tensor& t) {
     return reinterpret_cast<const uint16_t*>(t.data_ptr<at::BFloat16>());
 }
@@ -786,7 +785,7 @@ std::vector<at::Tensor> mlp_forward(
         // Chunks of CHUNK_ROWS points, each carried through every layer by one thread: a layer's h in the
         // thread's own buffers for the next (cached, not a pass over all the points a layer), and the
         // same chunks as the backward's (each thread then finds its rows in its own cache).
-        const int64_t chunks = std::max<int64_t>(1, (n + CHUNK_ROWS - 1) / CHUNK_ROWS);
+        const int64_t chunks = chunks_of(n);
         at::parallel_for(0, chunks, 1, [&](int64_t c0, int64_t c1) {
             const int64_t slot = CHUNK_ROWS * widest;
             std::unique_ptr<scalar_t[]> scratch(new scalar_t[2 * slot]);
@@ -913,7 +912,7 @@ std::vector<at::Tensor> mlp_backward(
         // gradients' partial sums, then its rows of dz_{i-1} = (dz_i W_i) act'(z_{i-1}) in the thread's
         // own buffers (cached, not a pass over all the points per product). The same arithmetic per
         // row and per chunk as layer by layer, so the same sums.
-        const int64_t chunks = std::max<int64_t>(1, (n + CHUNK_ROWS - 1) / CHUNK_ROWS);
+        const int64_t chunks = chunks_of(n);
         std::vector<int64_t> ms(layers), ks(layers), offsets(layers + 1);
         int64_t total = 0, widest = m_last;
         for (int64_t i = 0; i < layers; ++i) {
