@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from tracegs.physics import fused
-from tracegs.physics.integrate import DynamicsParams, integrate, integrate_states
+from tracegs.physics.integrate import DynamicsParams, integrate, integrate_rows, integrate_states
 from tracegs.physics.so3 import quat_normalize
 
 pytestmark = pytest.mark.skipif(fused.EXTENSION.load() is None, reason="the native RK2 did not build here")
@@ -108,4 +108,52 @@ def test_integrate_states_is_integrates_positions_and_orientations(method):
     assert x_only[1] is None
     torch.testing.assert_close(
         x_only[0], integrate(x, None, DynamicsParams(*params), -0.03, 1 / 59, method)[0]
+    )
+
+
+def run_rows(tensors, rows, enabled: bool, straight_through: bool, dtype=torch.float64):
+    """``integrate_rows`` on the rows ``rows`` of the particles (the params those rows'): its outputs
+    and the gradients of a fixed random functional of the full state (x, q, params)."""
+    x, q, *params = [t.to(dtype).clone().requires_grad_() for t in tensors]
+    rows_params = [p[rows].detach().requires_grad_() for p in params]
+    previous, fused.ENABLED = fused.ENABLED, enabled
+    try:
+        x_end, q_end, moved = integrate_rows(
+            x, q, rows, DynamicsParams(*rows_params), 0.05, 1 / 59, "rk2", straight_through
+        )
+    finally:
+        fused.ENABLED = previous
+    g = torch.Generator().manual_seed(2)
+    total = sum((o * torch.randn(o.shape, generator=g, dtype=o.dtype)).sum() for o in (x_end, q_end))
+    assert not moved.requires_grad
+    return [x_end, q_end, moved, *torch.autograd.grad(total, [x, q, *rows_params])]
+
+
+@pytest.mark.parametrize("straight_through", [True, False])
+def test_native_rk2_of_some_rows_matches_gathers_and_copies(straight_through):
+    """The rows' op (gathers, RK2 and copies back in one node) against the PyTorch gathers, index copies
+    and straight-through sum it replaces: values and every gradient, the kept rows' included."""
+    tensors = particles(200)
+    rows = torch.randperm(200, generator=torch.Generator().manual_seed(3))[:120]
+    ours = run_rows(tensors, rows, True, straight_through)
+    reference = run_rows(tensors, rows, False, straight_through)
+    for a, b in zip(ours, reference, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
+    kept = torch.ones(200, dtype=torch.bool)
+    kept[rows] = False
+    assert torch.equal(ours[0][kept], tensors[0][kept]) and torch.equal(ours[1][kept], tensors[1][kept])
+    d_x = ours[3]
+    if straight_through:  # the positions' gradient passes to x unchanged, moved rows or not
+        g = torch.Generator().manual_seed(2)
+        assert torch.equal(d_x, torch.randn(ours[0].shape, generator=g, dtype=d_x.dtype))
+
+
+def test_native_rk2_of_some_rows_gradients_match_finite_differences():
+    x, q, v, w, a, e = particles(9)
+    rows = torch.tensor([7, 0, 3, 4])
+    inputs = [x.clone().requires_grad_(), q.clone().requires_grad_()] + [
+        p[rows].clone().requires_grad_() for p in (v, w, a, e)
+    ]
+    assert torch.autograd.gradcheck(
+        lambda *t: fused.fused_rk2_rows(t[0], t[1], rows, t[2:], 0.02, 3, False)[:2], inputs
     )

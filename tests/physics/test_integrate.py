@@ -12,7 +12,6 @@ from tracegs.physics.integrate import (
     equivalent_from_center,
     integrate,
     integrate_field,
-    local_angular_velocity,
     num_substeps,
     params_at,
     params_in_world,
@@ -418,51 +417,30 @@ def test_acceleration_consistency_measures_the_acceleration_error_and_trains_onl
     assert learned.acceleration.grad.abs().sum() > 0
 
 
-def test_local_rotation_fit_recovers_the_rotation_of_a_rigid_body():
-    """A spinning, accelerating body seen on a surface patch (all particles in one plane): the local rigid
-    fit of the particle velocities returns the body's w exactly (but for the solve's 1e-6 ridge), also
-    from particle velocities given as translations alone (w = 0, v_bar = each particle's velocity)."""
-    g = torch.Generator().manual_seed(5)
-    x = torch.randn(32, 3, generator=g, dtype=f64)
-    x[:, 2] = 0.4  # a flat patch: the neighbours span no volume
-    center = torch.tensor([0.3, -0.2, 0.5], dtype=f64).expand(32, 3)
-    v_c, a_c = torch.tensor([0.65, 0.0, 1.0], dtype=f64), torch.tensor([0.0, 0.0, -2.0], dtype=f64)
-    w, eps = torch.tensor([0.8, 3.8, -1.1], dtype=f64), torch.zeros(3, dtype=f64)
-    rigid = equivalent_from_center(center, *(v.expand(32, 3) for v in (v_c, a_c, w, eps)))
-    neighbours = torch.stack([torch.roll(torch.arange(32), k) for k in range(1, 9)], dim=1)
-    velocity = particle_velocity(x, rigid.velocity, rigid.angular_velocity)
-    fit = local_angular_velocity(x, velocity, neighbours)
-    torch.testing.assert_close(fit, w.expand(32, 3), rtol=0, atol=1e-4)
-
-    zero = torch.zeros_like(x)
-    translated = particle_velocity(x, velocity.clone(), zero)
-    torch.testing.assert_close(translated, velocity)  # same motion
-    torch.testing.assert_close(
-        local_angular_velocity(x, translated, neighbours), w.expand(32, 3), rtol=0, atol=1e-4
+@pytest.mark.parametrize("s", [0.13, -0.07])
+def test_second_order_consistency_node_gives_autograds_bits(s):
+    """The second-order gap as one autograd node against the composition of PyTorch ops it replaces:
+    the same value and accelerations' gradients, bit for bit (float32, some gaps exactly zero)."""
+    g = torch.Generator().manual_seed(4)
+    params = DynamicsParams(*(torch.randn(300, 3, generator=g) for _ in range(4)))
+    later = params_at(params, s)._replace(
+        velocity=params_at(params, s).velocity + torch.randn(300, 3, generator=g)
     )
-
-
-def test_local_rotation_fit_ignores_a_body_sliding_past():
-    """Two flat patches 0.03 apart: one turning at w = 2 about z, the other translating at 0.7 beneath
-    it, so that 14% of the neighbour pairs cross the contact. Least squares over all pairs would read
-    the shear as a fast rotation for most particles; the pair weights keep 95% of the fits within 0.5
-    of their body's angular velocity (rigid motions stay exact: first test above)."""
-    g = torch.Generator().manual_seed(0)
-    n = 400
-    upper, lower = (torch.rand(n, 3, generator=g, dtype=f64) * 0.4 for _ in range(2))
-    upper[:, 2], lower[:, 2] = 0.0, -0.03
-    w = torch.tensor([0.0, 0.0, 2.0], dtype=f64)
-    x = torch.cat([upper, lower])
-    u = torch.cat(
-        [torch.cross(w.expand(n, 3), upper, dim=-1), torch.tensor([0.7, 0.0, 0.0], dtype=f64).expand(n, 3)]
+    later.velocity[:20] = params_at(params, s).velocity[:20]  # (|0|'s gradient: sign 0)
+    ours = DynamicsParams(*(p.clone().requires_grad_() for p in params[:4]))
+    gap = acceleration_consistency(ours, later, s)
+    gap.backward()
+    ref = DynamicsParams(*(p.clone().requires_grad_() for p in params[:4]))
+    v, w = (
+        ref.velocity.detach() + s * ref.acceleration,
+        ref.angular_velocity.detach() + s * ref.angular_acceleration,
     )
-    d2 = torch.cdist(x, x).fill_diagonal_(float("inf"))
-    neighbours = d2.topk(8, largest=False).indices
-    crossing = (neighbours < n) != (torch.arange(2 * n)[:, None] < n)
-    assert crossing.double().mean() > 0.1
-    fit = local_angular_velocity(x, u, neighbours)
-    error = torch.cat([(fit[:n] - w).norm(dim=-1), fit[n:].norm(dim=-1)])
-    assert (error < 0.5).double().mean() > 0.95
+    expected = ((v - later.velocity).abs().mean() + (w - later.angular_velocity).abs().mean()) / abs(s)
+    expected.backward()
+    assert torch.equal(gap, expected)
+    assert torch.equal(ours.acceleration.grad, ref.acceleration.grad)
+    assert torch.equal(ours.angular_acceleration.grad, ref.angular_acceleration.grad)
+    assert ours.velocity.grad is None and ours.angular_velocity.grad is None
 
 
 def test_a_spinning_projectile_needs_the_third_order_term():

@@ -15,7 +15,7 @@ import torch
 from torch import nn
 
 from ..physics.free_body import median_spacing
-from ..physics.integrate import acceleration_consistency, integrate_states, params_in_world
+from ..physics.integrate import acceleration_consistency, integrate_rows, integrate_states, params_in_world
 from ..render import rasterize
 from .colour import CameraColour
 from .deformation import deform_rows, make_deformation_field
@@ -231,10 +231,17 @@ class TraceModel(nn.Module):
         x_start = start["means"].detach() if straight_through else start["means"]
         query_time = t_prime if stage.physics_derivation else t
         rows = self._moving_rows()  # f_trd moves these; the static Gaussians stay where they are
-        x_run, q_run = (x_start, start["quats"]) if rows is None else (x_start[rows], start["quats"][rows])
+        x_run = x_start if rows is None else x_start[rows]
         params = self.query_dynamics(x_run, query_time)
-        means, quats = integrate_states(
-            x_run, q_run, params, t - t_prime, self.dt_max, method=stage.integrator
+        means, quats, moved = integrate_rows(
+            start["means"],
+            start["quats"],
+            rows,
+            params,
+            t - t_prime,
+            self.dt_max,
+            stage.integrator,
+            straight_through,
         )
         losses = {}
         share = 1.0 if rows is None else rows.numel() / x_start.shape[0]  # a mean over all Gaussians
@@ -249,14 +256,10 @@ class TraceModel(nn.Module):
                         x_run, None, params, span, self.dt_max, method=stage.integrator
                     )[0]
                 else:
-                    x_check = means
+                    x_check = moved
                 later = self.query_dynamics(x_check, t_check, rates=False)  # it reads velocities
             gap = acceleration_consistency(params, later, t_check - t_prime)  # the static ones' gap is zero
             losses["acceleration"] = stage.acceleration_consistency * share * gap
-        if rows is not None:
-            means, quats = x_start.index_copy(0, rows, means), start["quats"].index_copy(0, rows, quats)
-        if straight_through:
-            means = means + (start["means"] - start["means"].detach())
         return {"means": means, "quats": quats, "scales": start["scales"]}, losses
 
     # ----- f_defo over the training span ----------------------------------------------------

@@ -5,7 +5,13 @@ second-order system, quaternions or positions only) and the extension builds; el
 ``ENABLED = False``, it runs the PyTorch sub-steps. Both compute the same formulas in the same order:
 values and gradients agree to float rounding (tests/physics/test_fused_rk2.py).
 
-N: particles.
+A training step's other small physics ops as one autograd node each: the RK2 of the moving rows of
+the full state tensors with their gathers and copies back (``fused_rk2_rows``, from
+``integrate.integrate_rows``), and the second-order acceleration consistency
+(``second_order_consistency``). Each had ~10 ATen ops and autograd nodes of a few microseconds, run
+on one thread while the other waits (docs/DESIGN.md, "Fused MLPs").
+
+N: particles; M: the rows moved.
 """
 
 from __future__ import annotations
@@ -63,6 +69,61 @@ class _FusedRK2(torch.autograd.Function):
         return (*[g if r and n else None for g, r, n in zip(grads, reaches, needed, strict=True)], None, None)
 
 
+class _FusedRK2Rows(torch.autograd.Function):
+    """The RK2 of some rows of full state tensors, the gathers and scatters inside: one autograd node
+    instead of ~10 (two gathers, two index copies, the straight-through sum and their backwards)."""
+
+    @staticmethod
+    def forward(ctx, x, q, rows, v, w, a, e, dt: float, steps: int, straight_through: bool):
+        ops = EXTENSION.load()
+        x_rows, q_rows = x.detach().index_select(0, rows), q.detach().index_select(0, rows)
+        args = [x_rows, q_rows, *[t.detach().contiguous() for t in (v, w, a, e)]]
+        x_end, q_end = ops.rk2_forward(*args, dt, steps, True)
+        ctx.save_for_backward(rows, *args)
+        ctx.settings = (dt, steps, straight_through)
+        ctx.mark_non_differentiable(x_end)
+        return x.detach().index_copy(0, rows, x_end), q.detach().index_copy(0, rows, q_end), x_end
+
+    @staticmethod
+    def backward(ctx, gx, gq, _):
+        dt, steps, straight_through = ctx.settings
+        rows, *args = ctx.saved_tensors
+        g_rows = (gx.index_select(0, rows), gq.index_select(0, rows))
+        gx0, gq0, gv, gw, ga, ge = EXTENSION.load().rk2_backward(*g_rows, *args, dt, steps, True)
+        d_x = gx if straight_through else gx.index_copy(0, rows, gx0)
+        return d_x, gq.index_copy(0, rows, gq0), None, gv, gw, ga, ge, None, None, None
+
+
+def applies_rows(x: torch.Tensor, q: torch.Tensor, rows: torch.Tensor, params, steps: int) -> bool:
+    """Whether ``fused_rk2_rows`` can integrate the rows ``rows`` of ``x`` [N, 3] and ``q`` [N, 4]."""
+    if not (
+        rows.dim() == 1
+        and rows.dtype == torch.int64
+        and rows.device == x.device
+        and q.shape == (x.shape[0], 4)
+    ):
+        return False
+    return q.dtype == x.dtype and applies(x.new_empty(rows.shape[0], 3), None, params, steps)
+
+
+def fused_rk2_rows(
+    x: torch.Tensor,
+    q: torch.Tensor,
+    rows: torch.Tensor,
+    params,
+    dt: float,
+    steps: int,
+    straight_through: bool,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``fused_rk2`` of the rows ``rows`` (distinct indices) of ``x`` [N, 3] and ``q`` [N, 4], ``params``
+    [M, 3] for those rows: ``(x, q)`` [N, ...] with those rows moved and the others kept, and the moved
+    rows' positions [M, 3] (no gradient). ``straight_through``: the motion starts from ``x`` detached and
+    the positions' gradient passes to ``x`` unchanged (``integrate.integrate_rows``). Call where
+    ``applies_rows`` says so."""
+    v, w, a, e = params[:4]
+    return _FusedRK2Rows.apply(x, q, rows, v, w, a, e, float(dt), int(steps), bool(straight_through))
+
+
 def fused_rk2(
     x: torch.Tensor, q: torch.Tensor | None, params, dt: float, steps: int
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -71,3 +132,29 @@ def fused_rk2(
     Call where ``applies`` says so."""
     v, w, a, e = params[:4]
     return _FusedRK2.apply(x, q, v, w, a, e, float(dt), int(steps))
+
+
+class _SecondOrderConsistency(torch.autograd.Function):
+    """``acceleration_consistency`` without jerks as one autograd node (a training step's ~12 small ops
+    each had theirs): the gap ``(|v + s a - v_later|.mean() + |w + s e - w_later|.mean()) / |s|`` and
+    its gradient to the accelerations, ``sign(.) * (g / |s| / count) * s``, in the same order of
+    operations as autograd's, hence the same bits."""
+
+    @staticmethod
+    def forward(ctx, a, e, v, w, v_later, w_later, s: float):
+        gaps = [v + s * a - v_later, w + s * e - w_later]
+        ctx.save_for_backward(*[torch.sign(g) for g in gaps])
+        ctx.s = s
+        return (gaps[0].abs().mean() + gaps[1].abs().mean()) / abs(ctx.s)
+
+    @staticmethod
+    def backward(ctx, grad):
+        sign_v, sign_w = ctx.saved_tensors
+        per = grad / abs(ctx.s) / sign_v.numel()
+        return sign_v * per * ctx.s, sign_w * per * ctx.s, None, None, None, None, None
+
+
+def second_order_consistency(a, e, v, w, v_later, w_later, s: float) -> torch.Tensor:
+    """``integrate.acceleration_consistency`` of a second-order system (``v``, ``w``, ``v_later``,
+    ``w_later`` held fixed) as one autograd node, the same bits."""
+    return _SecondOrderConsistency.apply(a, e, v, w, v_later, w_later, float(s))

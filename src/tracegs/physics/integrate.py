@@ -92,33 +92,6 @@ def velocities_at(params: DynamicsParams, s: Time) -> tuple[torch.Tensor, torch.
     return evolved.velocity, evolved.angular_velocity
 
 
-def local_angular_velocity(x: torch.Tensor, u: torch.Tensor, neighbours: torch.Tensor) -> torch.Tensor:
-    """[N, 3] angular velocity of the rigid motion that best fits each particle's neighbourhood.
-
-    ``x`` [N, 3] positions, ``u`` [N, 3] their velocities, ``neighbours`` [N, k] indices. With
-    ``dx = x_j - x_i`` and ``du = u_j - u_i``, the w minimising ``sum_j |du - w x dx|^2`` solves
-    ``sum_j (|dx|^2 I - dx dx^T) w = sum_j dx x du``: well posed also when the neighbours lie on a
-    surface (unlike the curl of a fitted velocity gradient, which misses the normal derivatives).
-
-    Neighbours on another body that slides past (a carriage on its rail) would read as a fast spurious
-    rotation; each pair is therefore weighted by ``1 / (1 + (|du| / s)^4)`` with ``s`` three times the
-    neighbourhood's median ``|du|`` (plus 1e-3): within a rigid body ``|du|`` grows with ``|dx|`` alone
-    and every pair keeps a weight near 1; a pair across a sliding contact moves much faster relative
-    to the others and drops out. Any positive weights leave a rigid motion's fit exact.
-    """
-    dx = x[neighbours] - x[:, None]  # [N, k, 3]
-    du = u[neighbours] - u[:, None]
-    speed = du.norm(dim=-1)  # [N, k]
-    scale = 3 * speed.median(dim=-1, keepdim=True).values + 1e-3
-    weight = (1 / (1 + (speed / scale) ** 4))[..., None]
-    eye = torch.eye(3, dtype=x.dtype, device=x.device)
-    a = (dx * dx).sum(-1)[..., None, None] * eye - dx[..., :, None] * dx[..., None, :]
-    a = (weight[..., None] * a).sum(1)  # [N, 3, 3]
-    a = a + 1e-6 * a.diagonal(dim1=-2, dim2=-1).sum(-1)[:, None, None] * eye  # collinear neighbours
-    b = (weight * torch.cross(dx, du, dim=-1)).sum(1)
-    return torch.linalg.solve(a, b)
-
-
 def acceleration_consistency(params: DynamicsParams, later: DynamicsParams, s: float) -> torch.Tensor:
     """Mean L1 gap, in acceleration units, between the velocities ``later`` observed ``s`` after the
     query of ``params`` (e.g. f_trd queried again along the trajectory) and those that ``params``'
@@ -128,6 +101,9 @@ def acceleration_consistency(params: DynamicsParams, later: DynamicsParams, s: f
     accelerations (and jerks): they learn the time derivative of the velocity field along the motion.
     Zero when the velocity field changes exactly as the accelerations say (constant-acceleration motion).
     """
+    if params.jerk is None:  # (second order: one autograd node, the same arithmetic)
+        held = [p.detach() for p in (params.velocity, params.angular_velocity, *later[:2])]
+        return fused.second_order_consistency(params.acceleration, params.angular_acceleration, *held, s)
     held = params._replace(
         velocity=params.velocity.detach(), angular_velocity=params.angular_velocity.detach()
     )
@@ -342,6 +318,40 @@ def integrate_states(
         return x, q
     native = _native_rk2(x, q, params, dt_total, dt_max, method)
     return native if native is not None else _substeps(x, q, params, dt_total, dt_max, method)[:2]
+
+
+def integrate_rows(
+    x: torch.Tensor,
+    q: torch.Tensor,
+    rows: torch.Tensor | None,
+    params: DynamicsParams,
+    dt_total: float,
+    dt_max: float,
+    method: str = "rk2",
+    straight_through: bool = False,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``integrate_states`` of the rows ``rows`` (distinct indices; all where None) of ``x`` [N, 3] and
+    ``q`` [N, 4], ``params`` given for those rows: ``(x, q)`` [N, ...] with the rows moved and the
+    others kept, and the moved rows' positions [M, 3] (without gradient). ``straight_through``: the
+    motion starts from ``x`` detached and the positions' gradient passes to ``x`` unchanged (a TRACE
+    training step: f_defo's gradient reaches the rendered position). On the native RK2's path the
+    gathers and copies back are inside its op (``fused.fused_rk2_rows``)."""
+    dt_total = float(dt_total)
+    if rows is not None and method == "rk2" and dt_total != 0.0:
+        n = num_substeps(dt_total, dt_max)
+        if fused.applies_rows(x, q, rows, params, n):
+            return fused.fused_rk2_rows(x, q, rows, params, dt_total / n, n, straight_through)
+    start = x.detach() if straight_through else x
+    x_run, q_run = (start, q) if rows is None else (start[rows], q[rows])
+    moved, q_moved = integrate_states(x_run, q_run, params, dt_total, dt_max, method)
+    x_out, q_out = (
+        (moved, q_moved)
+        if rows is None
+        else (start.index_copy(0, rows, moved), q.index_copy(0, rows, q_moved))
+    )
+    if straight_through:
+        x_out = x_out + (x - x.detach())
+    return x_out, q_out, moved.detach()
 
 
 def _native_rk2(x, q, params, dt_total: float, dt_max: float, method: str):

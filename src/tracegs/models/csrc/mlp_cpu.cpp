@@ -405,18 +405,13 @@ inline at::Tensor as_type(const at::Tensor& t, at::ScalarType type) {
 // A matrix [rows, cols] (any strides and floating type) copied as T into a zero-padded [padded rows,
 // padded cols] buffer, transposed if asked ([cols, rows] -> its transpose's padding), its rows from
 // keep_rows on left zero. Plain loops, no ATen ops: the op packs every layer each call.
+// Rows [r0, r1) of that copy (w already of type T, not transposed), written whole into o (row stride
+// pc, from its row r0): the forward's input, a chunk at a time in the thread that takes it.
 template <typename T>
-at::Tensor pack(const at::Tensor& w0, bool transpose, int64_t keep_rows = -1) {
-    constexpr auto type = c10::CppTypeToScalarType<T>::value;
-    const at::Tensor w = as_type(w0, type);
-    const int64_t rows = w.size(transpose ? 1 : 0), cols = w.size(transpose ? 0 : 1);
-    const int64_t rs = w.stride(transpose ? 1 : 0), cs = w.stride(transpose ? 0 : 1);
-    const int64_t kept = keep_rows >= 0 && keep_rows < rows ? keep_rows : rows;
-    const int64_t pc = padded(cols);
-    at::Tensor out = at::empty({padded(rows), pc}, w.options());
-    T* o = out.data_ptr<T>();
+void pack_rows(const at::Tensor& w, int64_t r0, int64_t r1, T* o, int64_t pc) {
+    const int64_t cols = w.size(1), rs = w.stride(0), cs = w.stride(1);
     const T* src = w.data_ptr<T>();
-    for (int64_t r = 0; r < kept; ++r) {
+    for (int64_t r = r0; r < r1; ++r) {
         if (cs == 1) {  // (a row in one copy: the fields' inputs, [N, E])
             std::copy(src + r * rs, src + r * rs + cols, o + r * pc);
         } else {
@@ -426,6 +421,17 @@ at::Tensor pack(const at::Tensor& w0, bool transpose, int64_t keep_rows = -1) {
         }
         std::fill(o + r * pc + cols, o + (r + 1) * pc, T(0));
     }
+}
+
+template <typename T>
+at::Tensor pack(const at::Tensor& w0, bool transpose, int64_t keep_rows = -1) {
+    constexpr auto type = c10::CppTypeToScalarType<T>::value;
+    const at::Tensor w = transpose ? as_type(w0, type).t() : as_type(w0, type);
+    const int64_t rows = w.size(0), pc = padded(w.size(1));
+    const int64_t kept = keep_rows >= 0 && keep_rows < rows ? keep_rows : rows;
+    at::Tensor out = at::empty({padded(rows), pc}, w.options());
+    T* o = out.data_ptr<T>();
+    pack_rows<T>(w, 0, kept, o, pc);
     std::fill(o + kept * pc, o + out.numel(), T(0));
     return out;
 }
@@ -509,15 +515,35 @@ struct BackwardStore {  // dz_{i-1} = (dz_i W_i) act'(z_{i-1}), from z and its s
     }
 };
 
-// A padded float matrix's bf16 copy (the operand A of bf16 products), all its elements.
-at::Tensor bf16_copy(const at::Tensor& f) {
-    at::Tensor out = at::empty(f.sizes(), f.options().dtype(at::kBFloat16));
-    const float* src = f.data_ptr<float>();
-    uint16_t* dst = reinterpret_cast<uint16_t*>(out.data_ptr<at::BFloat16>());
-    for (int64_t e = 0; e < f.numel(); e += LANES<float>) {
+// count floats (a multiple of a vector's lanes: padded rows) copied as bf16 (the operand A of bf16 products).
+inline void copy_bf16(const float* src, int64_t count, uint16_t* dst) {
+    for (int64_t e = 0; e < count; e += LANES<float>) {
         store_copy<float>(dst, e, loadv(src + e));
     }
-    return out;
+}
+
+inline uint16_t* bf16_data(const at::Tensor& t) {
+    return reinterpret_cast<uint16_t*>(t.data_ptr<at::BFloat16>());
+}
+
+// Rows [r0, r1) of the last layer's output h (padded) into the output groups (each [N, its columns]),
+// those from column ``scaled_from`` on (>= 0) as r |r| / scale (as ATen: the product, then the division).
+template <typename T>
+void write_groups(const at::Tensor& h, int64_t r0, int64_t r1, const std::vector<at::Tensor>& groups, int64_t scaled_from,
+                  double scale) {
+    const T* hp = h.data_ptr<T>();
+    const int64_t ld = h.size(1);
+    const T s = T(scale);
+    for (int64_t g = 0, c0 = 0; g < int64_t(groups.size()); c0 += groups[g].size(1), ++g) {
+        const int64_t cols = groups[g].size(1);
+        T* op = groups[g].data_ptr<T>();
+        for (int64_t r = r0; r < r1; ++r) {
+            for (int64_t c = 0; c < cols; ++c) {
+                const T v = hp[r * ld + c0 + c];
+                op[r * cols + c] = scaled_from >= 0 && c0 + c >= scaled_from ? v * std::abs(v) / s : v;
+            }
+        }
+    }
 }
 
 // The operand B of a bf16 product: ``pack``'s padded [K, M] matrix as pairs of its rows [K / 2, M, 2],
@@ -539,10 +565,6 @@ at::Tensor pack_pairs(const at::Tensor& w, bool transpose, int64_t keep_rows = -
 
 inline const uint32_t* pairs_of(const at::Tensor& t) {
     return reinterpret_cast<const uint32_t*>(t.data_ptr<at::BFloat16>());
-}
-
-inline const uint16_t* bf16_data_const(const at::Tensor& t) {
-    return reinterpret_cast<const uint16_t*>(t.data_ptr<at::BFloat16>());
 }
 
 // The rows of B = w^T (``transpose``) or w (its rows from ``keep`` on left zero) that are not padding:
@@ -753,10 +775,17 @@ std::vector<at::Tensor> mlp_forward(
                 biases[skip_layer] = fold_time<scalar_t>(biases[skip_layer], whole[skip_layer], parts);
             }
         }
-        const at::Tensor input = pack<scalar_t>(x, false);  // [N padded to PAD rows, E padded]
-        const int64_t rows = input.size(0), ke = input.size(1), last = layers - 1;
+        // x [N padded to PAD rows, E padded], each chunk's rows packed (and copied as bf16) by its thread
+        const at::Tensor xt = as_type(x, c10::CppTypeToScalarType<scalar_t>::value);
+        const int64_t rows = padded(n), ke = padded(x.size(1)), last = layers - 1;
+        const at::Tensor input = at::empty({rows, ke}, x.options().dtype(xt.scalar_type()));
+        std::fill(input.data_ptr<scalar_t>() + n * ke, input.data_ptr<scalar_t>() + rows * ke, scalar_t(0));
         saved.push_back(input);
-        const at::Tensor input_bf16 = bf16 ? bf16_copy(input) : at::Tensor();
+        at::Tensor input_bf16;
+        if (bf16) {
+            input_bf16 = at::empty({rows, ke}, x.options().dtype(at::kBFloat16));
+            std::fill(bf16_data(input_bf16) + n * ke, bf16_data(input_bf16) + rows * ke, uint16_t(0));
+        }
         // the layers' operands, packed once; what the backward reads (``kept``): z for SiLU and the linear
         // last layer, h for ReLU; without a gradient to come only the last layer's
         std::vector<PackedB> packed(layers);
@@ -782,6 +811,10 @@ std::vector<at::Tensor> mlp_forward(
         if (acts[last] == SILU) {
             out_h = at::zeros({rows, m_last}, input.options());
         }
+        std::vector<at::Tensor> outs(groups.size());
+        for (size_t g = 0; g < groups.size(); ++g) {
+            outs[g] = at::empty({n, groups[g]}, input.options());
+        }
         // Chunks of CHUNK_ROWS points, each carried through every layer by one thread: a layer's h in the
         // thread's own buffers for the next (cached, not a pass over all the points a layer), and the
         // same chunks as the backward's (each thread then finds its rows in its own cache).
@@ -792,8 +825,12 @@ std::vector<at::Tensor> mlp_forward(
             std::unique_ptr<uint16_t[]> scratch16(bf16 ? new uint16_t[2 * slot] : nullptr);
             for (int64_t c = c0; c < c1; ++c) {
                 const int64_t r0 = c * CHUNK_ROWS, cr = std::min(n, r0 + CHUNK_ROWS) - r0;
+                pack_rows<scalar_t>(xt, r0, r0 + cr, input.data_ptr<scalar_t>(), ke);
+                if (bf16) {
+                    copy_bf16(input.data_ptr<float>() + r0 * ke, cr * ke, bf16_data(input_bf16) + r0 * ke);
+                }
                 const Operand<scalar_t> x_rows{nullptr, input.data_ptr<scalar_t>() + r0 * ke,
-                                               bf16 ? bf16_data_const(input_bf16) + r0 * ke : nullptr, ke};
+                                               bf16 ? bf16_data(input_bf16) + r0 * ke : nullptr, ke};
                 Operand<scalar_t> cur = x_rows;
                 for (int64_t i = 0, turn = 0; i < layers; ++i, turn ^= 1) {
                     const int64_t m = packed[i].b.size(1);
@@ -814,26 +851,12 @@ std::vector<at::Tensor> mlp_forward(
                     });
                     cur = {nullptr, h, h16, m};
                 }
+                write_groups<scalar_t>(out_h.defined() ? out_h : kept[last], r0, r0 + cr, outs, scaled_from, scale);
             }
         });
+        std::copy(outs.begin(), outs.end(), saved.begin());
         if (save) {
             saved.insert(saved.end(), kept.begin(), kept.end());
-        }
-        const at::Tensor h = out_h.defined() ? out_h : kept[last];  // (the last layer's output)
-        // the outputs by groups, the scaled ones as r |r| / scale (as ATen: the product, then the division)
-        const scalar_t* hp = h.data_ptr<scalar_t>();
-        const int64_t ld = h.size(1);
-        const scalar_t s = scalar_t(scale);
-        for (int64_t g = 0, c0 = 0; g < int64_t(groups.size()); c0 += groups[g], ++g) {
-            at::Tensor o = at::empty({n, groups[g]}, input.options());
-            scalar_t* op = o.data_ptr<scalar_t>();
-            for (int64_t r = 0; r < n; ++r) {
-                for (int64_t c = 0; c < groups[g]; ++c) {
-                    const scalar_t v = hp[r * ld + c0 + c];
-                    op[r * groups[g] + c] = scaled_from >= 0 && c0 + c >= scaled_from ? v * std::abs(v) / s : v;
-                }
-            }
-            saved[g] = o;
         }
     });
     return saved;
