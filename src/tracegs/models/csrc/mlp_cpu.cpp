@@ -46,7 +46,7 @@
 #include <utility>
 #include <vector>
 
-#if defined(__AVX512F__)
+#if defined(__AVX__)
 #include <immintrin.h>
 #endif
 
@@ -130,6 +130,21 @@ inline VT<float>::v exp_poly(VT<float>::v r) {  // e^r for |r| <= ln2 / 2
     return p * r + 1.0f;
 }
 
+// max(lo, min(hi, y)) lane by lane, a NaN kept: one min and one max where the vectors are AVX's
+// (GCC's vector conditionals compile to a compare and a blend each).
+inline VT<float>::v clamp_lanes(VT<float>::v y, float lo, float hi) {
+#if defined(__AVX__) && !defined(__AVX512F__)
+    __m256 v;
+    std::memcpy(&v, &y, sizeof(v));
+    v = _mm256_max_ps(_mm256_set1_ps(lo), _mm256_min_ps(_mm256_set1_ps(hi), v));  // (NaN: the second operand)
+    std::memcpy(&y, &v, sizeof(v));
+    return y;
+#else
+    y = y < lo ? lo : y;
+    return y > hi ? hi : y;
+#endif
+}
+
 inline VT<float>::v exp_neg(VT<float>::v x) {
 #if defined(__AVX512F__)
     __m512 y;
@@ -148,12 +163,14 @@ inline VT<float>::v exp_neg(VT<float>::v x) {
     return out;
 #else
     typedef int32_t vi __attribute__((vector_size(VBYTES)));
-    VT<float>::v y = -x;
-    y = y < -87.0f ? -87.0f : y;
-    y = y > 88.0f ? 88.0f : y;
-    const VT<float>::v n = (y * 1.44269504f + 12582912.0f) - 12582912.0f;
+    VT<float>::v y = clamp_lanes(-x, -87.0f, 88.0f);
+    // t = 1.5 * 2^23 + n holds the rounded n in its low mantissa bits: 2^n's exponent bits are t's
+    // bits plus the bias, shifted (1.5 * 2^23's own bits end in 23 zeros); no conversion
+    const VT<float>::v t = y * 1.44269504f + 12582912.0f, n = t - 12582912.0f;
     const VT<float>::v r = (y - n * 0.693145752f) - n * 1.42860677e-6f;
-    const vi bits = (__builtin_convertvector(n, vi) + 127) << 23;
+    vi bits;
+    std::memcpy(&bits, &t, sizeof(bits));
+    bits = (bits + 127) << 23;
     VT<float>::v scale;
     std::memcpy(&scale, &bits, sizeof(scale));
     return exp_poly(r) * scale;
@@ -314,7 +331,13 @@ inline void block_row(const std::vector<P>& pairs, const typename Sum<P>::type* 
     }
 }
 
-// Tiles [t0, t1) of a row-wise product. Not inlined: with one thread at::parallel_for calls its body
+// Whether an epilogue applies its activation after each tile (``finish``) rather than in the block.
+template <typename E, typename = void>
+struct Defers : std::false_type {};
+template <typename E>
+struct Defers<E, std::void_t<decltype(E::defers)>> : std::bool_constant<E::defers> {};
+
+// Tiles [t0, t1) of a row-wise product (a deferred activation after each). Not inlined: with one thread at::parallel_for calls its body
 // in place, and inlined there the product's loops were compiled anew, with SiLU's constants held in
 // vector registers and the sums spilled to the stack (1.5x as long as the same code called by the
 // threads); one function serves both (the chunks' products, chunk_product).
@@ -329,6 +352,9 @@ __attribute__((noinline)) void product_tiles(const std::vector<P>& pairs, const 
         }
         for (; r < end; ++r) {
             block_row<1>(pairs, init, r, vectors, epi);
+        }
+        if constexpr (Defers<Epi>::value) {
+            epi.finish(t * TILE_ROWS, end, vectors * LANES<typename Sum<P>::type>);
         }
     }
 }
@@ -467,15 +493,32 @@ inline void store_copy(uint16_t* copy, int64_t at, typename VT<T>::v v) {
 // The forward's epilogue (the bias is in the sums): z kept where the backward reads it (``kept``: z
 // for SiLU and for the linear last layer, h for ReLU; null: nothing kept, no gradient to come), and
 // h (with its bf16 copy for the next bf16 product) for the next layer (null: the last layer's is kept).
+// With AVX2's 16 vector registers SiLU is applied after each tile's products (``defers``): z is
+// stored as h, and ``finish`` turns a tile's rows of h into SiLU(z) in a loop of its own. Inside the
+// register block the sigmoid's constants and temporaries did not fit beside the 12 sums, and its chain
+// of dependent operations ran one result vector at a time (the epilogue took ~3x AVX-512's time per
+// lane); the same arithmetic, the same bits.
+#if defined(__AVX__) && !defined(__AVX512F__)
+constexpr bool DEFER_SILU = true;
+#else
+constexpr bool DEFER_SILU = false;
+#endif
+
 template <typename T, int64_t ACT>
 struct ForwardStore {
+    static constexpr bool defers = DEFER_SILU && ACT == SILU && std::is_same_v<T, float>;
     T* kept;
     T* h;
     int64_t ld;
-    uint16_t* h_bf16;
+    uint16_t* h_bf16;  // (never with ``defers``: bf16 products need AVX-512)
     void operator()(int64_t r, int64_t c, typename VT<T>::v v) {
         const int64_t at = r * ld + c;
-        if constexpr (ACT == SILU || ACT == RELU) {
+        if constexpr (defers) {
+            if (kept != nullptr) {
+                storev(kept + at, v);
+            }
+            storev(h + at, v);
+        } else if constexpr (ACT == SILU || ACT == RELU) {
             typename VT<T>::v a;
             if constexpr (ACT == SILU) {
                 a = v * sigmoid<T>(v);
@@ -491,6 +534,14 @@ struct ForwardStore {
             store_copy<T>(h_bf16, at, a);
         } else {
             storev(kept + at, v);
+        }
+    }
+    void finish(int64_t r0, int64_t r1, int64_t cols) {  // (``defers``: rows [r0, r1) of h, z -> SiLU(z))
+        for (int64_t r = r0; r < r1; ++r) {
+            for (int64_t c = 0; c < cols; c += LANES<T>) {
+                const typename VT<T>::v z = loadv(h + r * ld + c);
+                storev(h + r * ld + c, z * sigmoid<T>(z));
+            }
         }
     }
 };
