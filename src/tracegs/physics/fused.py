@@ -9,7 +9,7 @@ A training step's other small physics ops as one autograd node each: the RK2 of 
 the full state tensors with their gathers and copies back (``fused_rk2_rows``, from
 ``integrate.integrate_rows``), and the second-order acceleration consistency
 (``second_order_consistency``). Each had ~10 ATen ops and autograd nodes of a few microseconds, run
-on one thread while the other waits (docs/DESIGN.md, "Fused MLPs").
+on one thread while the other waits (docs/DESIGN.md, "The fields' glue as native ops").
 
 N: particles; M: the rows moved.
 """

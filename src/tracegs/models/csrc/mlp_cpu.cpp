@@ -337,10 +337,11 @@ struct Defers : std::false_type {};
 template <typename E>
 struct Defers<E, std::void_t<decltype(E::defers)>> : std::bool_constant<E::defers> {};
 
-// Tiles [t0, t1) of a row-wise product (a deferred activation after each). Not inlined: with one thread at::parallel_for calls its body
-// in place, and inlined there the product's loops were compiled anew, with SiLU's constants held in
-// vector registers and the sums spilled to the stack (1.5x as long as the same code called by the
-// threads); one function serves both (the chunks' products, chunk_product).
+// Tiles [t0, t1) of a row-wise product (a deferred activation after each). Not inlined: with one
+// thread at::parallel_for calls its body in place, and inlined there the product's loops were
+// compiled anew, with SiLU's constants held in vector registers and the sums spilled to the stack
+// (1.5x as long as the same code called by the threads); one function serves both (the chunks'
+// products, chunk_product).
 template <typename P, typename Epi>
 __attribute__((noinline)) void product_tiles(const std::vector<P>& pairs, const typename Sum<P>::type* init,
                                              int64_t n, int64_t vectors, int64_t t0, int64_t t1, Epi& epi) {
@@ -428,11 +429,9 @@ inline at::Tensor as_type(const at::Tensor& t, at::ScalarType type) {
     return t.scalar_type() == type ? t : t.to(type);
 }
 
-// A matrix [rows, cols] (any strides and floating type) copied as T into a zero-padded [padded rows,
-// padded cols] buffer, transposed if asked ([cols, rows] -> its transpose's padding), its rows from
-// keep_rows on left zero. Plain loops, no ATen ops: the op packs every layer each call.
-// Rows [r0, r1) of that copy (w already of type T, not transposed), written whole into o (row stride
-// pc, from its row r0): the forward's input, a chunk at a time in the thread that takes it.
+// Rows [r0, r1) of a matrix w [rows, cols] (of type T, any strides) copied into o (row stride pc >=
+// cols, from its row r0), each row's padding zeroed: ``pack``'s loop, and the forward's input packed
+// a chunk at a time by the thread that takes it.
 template <typename T>
 void pack_rows(const at::Tensor& w, int64_t r0, int64_t r1, T* o, int64_t pc) {
     const int64_t cols = w.size(1), rs = w.stride(0), cs = w.stride(1);
@@ -449,6 +448,9 @@ void pack_rows(const at::Tensor& w, int64_t r0, int64_t r1, T* o, int64_t pc) {
     }
 }
 
+// A matrix [rows, cols] (any strides and floating type) copied as T into a zero-padded [padded rows,
+// padded cols] buffer, transposed if asked ([cols, rows] -> its transpose's padding), its rows from
+// keep_rows on left zero. Plain loops, no ATen ops: the op packs every layer each call.
 template <typename T>
 at::Tensor pack(const at::Tensor& w0, bool transpose, int64_t keep_rows = -1) {
     constexpr auto type = c10::CppTypeToScalarType<T>::value;
@@ -580,8 +582,8 @@ inline uint16_t* bf16_data(const at::Tensor& t) {
 // Rows [r0, r1) of the last layer's output h (padded) into the output groups (each [N, its columns]),
 // those from column ``scaled_from`` on (>= 0) as r |r| / scale (as ATen: the product, then the division).
 template <typename T>
-void write_groups(const at::Tensor& h, int64_t r0, int64_t r1, const std::vector<at::Tensor>& groups, int64_t scaled_from,
-                  double scale) {
+void write_groups(const at::Tensor& h, int64_t r0, int64_t r1, const std::vector<at::Tensor>& groups,
+                  int64_t scaled_from, double scale) {
     const T* hp = h.data_ptr<T>();
     const int64_t ld = h.size(1);
     const T s = T(scale);
