@@ -157,3 +157,19 @@ def test_native_rk2_of_some_rows_gradients_match_finite_differences():
     assert torch.autograd.gradcheck(
         lambda *t: fused.fused_rk2_rows(t[0], t[1], rows, t[2:], 0.02, 3, False)[:2], inputs
     )
+
+
+def test_rows_with_a_gradient_to_the_state_only_fall_back_beyond_the_replay_limit():
+    """Params without a gradient but a quaternion with one: over MAX_STEPS the rows take the PyTorch
+    path (the native backward replays at most MAX_STEPS sub-steps)."""
+    x, q, v, w, a, e = particles(10)
+    rows = torch.tensor([1, 4, 6])
+    params = DynamicsParams(*(p[rows] for p in (v, w, a, e)))
+    steps = fused.MAX_STEPS + 1
+    assert fused.applies_rows(x, q, rows, params, fused.MAX_STEPS)
+    assert not fused.applies_rows(x, q.clone().requires_grad_(), rows, params, steps)
+    assert fused.applies_rows(x, q, rows, params, steps)
+    q = q.clone().requires_grad_()
+    _, q_end, _ = integrate_rows(x, q, rows, params, steps * 0.01, 0.01)
+    q_end.sum().backward()
+    assert torch.isfinite(q.grad).all()

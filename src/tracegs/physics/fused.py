@@ -95,15 +95,16 @@ class _FusedRK2Rows(torch.autograd.Function):
 
 
 def applies_rows(x: torch.Tensor, q: torch.Tensor, rows: torch.Tensor, params, steps: int) -> bool:
-    """Whether ``fused_rk2_rows`` can integrate the rows ``rows`` of ``x`` [N, 3] and ``q`` [N, 4]."""
-    if not (
-        rows.dim() == 1
-        and rows.dtype == torch.int64
-        and rows.device == x.device
-        and q.shape == (x.shape[0], 4)
+    """Whether ``fused_rk2_rows`` can integrate the rows ``rows`` of ``x`` [N, 3] and ``q`` [N, 4]
+    (``params``: those rows', as ``applies`` takes them; a gradient to ``x`` or ``q`` counts too)."""
+    if rows.dim() != 1 or rows.dtype != torch.int64 or rows.device != x.device or x.dim() != 2:
+        return False
+    if q.shape != (x.shape[0], 4) or any(
+        t.dtype != params.velocity.dtype or t.device != x.device for t in (x, q)
     ):
         return False
-    return q.dtype == x.dtype and applies(x.new_empty(rows.shape[0], 3), None, params, steps)
+    needs_grad = torch.is_grad_enabled() and (x.requires_grad or q.requires_grad)
+    return applies(params.velocity, None, params, steps) and not (needs_grad and steps > MAX_STEPS)
 
 
 def fused_rk2_rows(
