@@ -419,8 +419,8 @@ inline void row_pairs(const float* src, int64_t cr, int64_t w, uint32_t* dst) {
     const __m512i interleave = _mm512_load_si512(order);
     for (int64_t r = 0; r < cr; r += 2) {
         for (int64_t c = 0; c < w; c += 16) {
-            const __m256bh a = _mm512_cvtneps_pbh(_mm512_loadu_ps(src + r * w + c));
-            const __m256bh b = _mm512_cvtneps_pbh(r + 1 < cr ? _mm512_loadu_ps(src + (r + 1) * w + c) : _mm512_setzero_ps());
+            const __m512 next = r + 1 < cr ? _mm512_loadu_ps(src + (r + 1) * w + c) : _mm512_setzero_ps();
+            const __m256bh a = _mm512_cvtneps_pbh(_mm512_loadu_ps(src + r * w + c)), b = _mm512_cvtneps_pbh(next);
             __m256i ai, bi;
             std::memcpy(&ai, &a, sizeof(ai));
             std::memcpy(&bi, &b, sizeof(bi));
