@@ -11,7 +11,7 @@ from tests.conftest import write_tiny_scene
 from tracegs.config import make_config
 from tracegs.data.scene import load_scene
 from tracegs.extrapolate import ExtrapolationState, gaussians_at, handover_time, physics_from
-from tracegs.extrapolate.free_bodies import choose_free_bodies
+from tracegs.extrapolate.free_bodies import choose_free_bodies, legendre_to_path
 from tracegs.extrapolate.state import STATE_VERSION
 from tracegs.physics.free_body import FreeBody, move
 from tracegs.run_compat import state_from_old_checkpoint
@@ -115,12 +115,13 @@ def test_free_body_is_fitted_to_the_images_where_f_defo_is_off(tmp_path):
     trainer, model, state, part, scene = _setup(tmp_path, None, 0.8, bend=torch.tensor([1.5, 0.0, 1.0]))
     t0 = handover_time(model, trainer.t_max)
     centre = model.gaussians["means"][part].detach().double().mean(0)
-    errors = {}
-    for steps in (0, 150):
+    errors, acceleration_errors = {}, {}
+    for steps in (0, 60, 150):
         model.cfg.extrapolation.free_body_refine_steps = steps
         chosen, _ = choose_free_bodies(model, state, scene, 1, trainer.t_max, trainer.extent)
         assert torch.equal(chosen["labels"] > 0, part)
         body = FreeBody.from_tensor(chosen["bodies"][0])
+        acceleration_errors[steps] = float((body.a - A.double()).norm() / A.norm())
         start = (centre + V.double() * t0 + 0.5 * A.double() * t0 * t0)[None].float()  # f_defo's at t0
         errors[steps] = []
         for t in (trainer.t_max, trainer.t_max + 0.25):  # the end of the data, and a little later
@@ -129,6 +130,24 @@ def test_free_body_is_fitted_to_the_images_where_f_defo_is_off(tmp_path):
             errors[steps].append(float((moved[0].double() - truth).norm()))
     assert min(errors[0]) > 0.01  # the fit to f_defo inherits its error
     assert max(errors[150]) < 0.25 * min(errors[0])
+    # the acceleration settles early: steps in the Legendre coefficients, not in v and a (correlated
+    # over the window: 60 steps in those left it 0.23 of |A| off)
+    assert acceleration_errors[0] > 0.5 and acceleration_errors[60] < 0.05
+    assert acceleration_errors[150] < 0.01
+
+
+def test_legendre_steps_add_their_polynomials_to_the_path():
+    """``legendre_to_path``: the (v, a, shift) change it gives moves the pivot by c0 P0 + c1 P1 + c2 P2
+    over the span, with ``t0`` inside the span, at its end, or past it."""
+    generator = torch.Generator().manual_seed(0)
+    lo, hi = 0.3, 0.55
+    for t0 in (0.4, 0.55, 0.7):
+        c = torch.randn(3, generator=generator, dtype=torch.float64)
+        dv, da, shift = legendre_to_path(lo, hi, t0) @ c
+        for t in torch.linspace(lo, hi, 7, dtype=torch.float64):
+            x, s = (2 * t - lo - hi) / (hi - lo), t - t0
+            want = c[0] + c[1] * x + c[2] * (3 * x**2 - 1) / 2
+            torch.testing.assert_close(shift + dv * s + da * s * s / 2, want, rtol=0, atol=1e-12)
 
 
 def test_free_bodies_fitted_by_an_earlier_version_are_chosen_again():

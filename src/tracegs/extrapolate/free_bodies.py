@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from ..data.scene import load_image
@@ -23,6 +22,7 @@ from ..physics.free_body import (
     fit_rigid_velocity,
     isolation,
     main_piece,
+    median_spacing,
     move,
     pivot_path,
     rigid_components,
@@ -133,6 +133,17 @@ def fit_free_body(
     return FreeBody(c0, v, a, w)
 
 
+def legendre_to_path(lo: float, hi: float, t0: float) -> torch.Tensor:
+    """[3, 3] float64: the change of a pivot's (v, a, shift) at ``t0`` (rows) made by adding ``c0 P0(x) +
+    c1 P1(x) + c2 P2(x)`` (columns: the Legendre polynomials' coefficients, displacements) to its path
+    over ``[lo, hi]`` (``x`` = -1 at ``lo``, 1 at ``hi``)."""
+    h, x0 = (hi - lo) / 2, (2 * t0 - lo - hi) / (hi - lo)
+    return torch.tensor(
+        [[0.0, 1 / h, 3 * x0 / h], [0.0, 0.0, 3 / h**2], [1.0, x0, (3 * x0**2 - 1) / 2]],
+        dtype=torch.float64,
+    )
+
+
 def refine_free_body(
     body: FreeBody,
     rows: torch.Tensor,
@@ -151,24 +162,25 @@ def refine_free_body(
     off), and f_trd's spin at one instant may be off too; the images fix both, a spinning textured
     body's spin best, and where f_defo puts the body at ``t0`` (``shift``). The pivot stays: over a
     window of a few frames the images cannot tell a pivot moved by ``d`` from a velocity and an
-    acceleration changed by ``w x d`` and ``w x (w x d)``. The twelve numbers are stepped in units of
-    displacement over the window (``shift + ds``, ``v + dv / L``, ``a + 2 da / L^2``, ``w + dw / (L
-    R)``, with ``L`` the window's span and ``R`` the part's radius), about a tenth of its Gaussian
-    spacing a step at first."""
-    from scipy.spatial import cKDTree
-
+    acceleration changed by ``w x d`` and ``w x (w x d)``. The pivot's change of path is stepped as
+    three displacements, the coefficients of the Legendre polynomials P0, P1, P2 over the frames'
+    span (orthogonal there, where ``shift``, ``v`` and ``a`` are strongly correlated: Adam, diagonal,
+    took 600 steps to settle the acceleration in those, and its result at 150 steps swung with the
+    views drawn), the spin as ``w + dw / (L R)`` (``L`` the largest time from ``t0`` in the span, ``R``
+    the part's radius); about a tenth of its Gaussian spacing a step at first."""
     pairs = [(t, camera, gt) for t, views in frames.views.items() for camera, gt in views]
-    span = max((abs(t - t0) for t in frames.views), default=0.0)
-    if steps <= 0 or span <= 0 or int(rows.sum()) < 2:
+    lo, hi = min(frames.views, default=t0), max(frames.views, default=t0)
+    span = max(abs(lo - t0), abs(hi - t0))
+    if steps <= 0 or hi <= lo or int(rows.sum()) < 2:
         return body
     means, quats = start["means"][rows].detach(), start["quats"][rows].detach()
     points = means.double()
     radius = float((points - points.mean(0)).square().sum(-1).mean().sqrt())
-    spacing = float(np.median(cKDTree(points.cpu().numpy()).query(points.cpu().numpy(), 2)[0][:, 1]))
+    spacing = median_spacing(points.cpu().numpy())
     base = torch.stack([body.v, body.a, body.w, body.shift])
-    unit = torch.tensor(
-        [1.0 / span, 2.0 / span**2, 1.0 / (span * max(radius, 1e-9)), 1.0], dtype=torch.float64
-    )
+    unit = torch.zeros(4, 4, dtype=torch.float64)  # rows v, a, w, shift from P0, P1, P2, dw
+    unit[[0, 1, 3], :3] = legendre_to_path(lo, hi, t0)
+    unit[2, 3] = 1 / (span * max(radius, 1e-9))
     delta = torch.zeros(4, 3, dtype=torch.float64, requires_grad=True)
     optimizer = torch.optim.Adam([delta], lr=0.1 * max(spacing, 1e-9))
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, steps)
@@ -176,7 +188,7 @@ def refine_free_body(
     for _ in range(steps):
         pick = torch.randperm(len(pairs), generator=generator)[:views_per_step].tolist()
         with torch.enable_grad():
-            candidate = FreeBody(body.c0, *(base + delta * unit[:, None]))
+            candidate = FreeBody(body.c0, *(base + unit @ delta))
             loss = 0.0
             for i in pick:
                 t, camera, gt = pairs[i]
@@ -186,7 +198,7 @@ def refine_free_body(
             (loss / len(pick)).backward()
         optimizer.step()
         schedule.step()
-    return FreeBody(body.c0, *(base + delta.detach() * unit[:, None]))
+    return FreeBody(body.c0, *(base + unit @ delta.detach()))
 
 
 @torch.no_grad()
