@@ -6,9 +6,9 @@ a CPU, float32 or float64 fields, more than one point, the extension built with 
 agree to float rounding (tests/models/test_fused_mlp.py).
 
 Under bf16 autocast the op multiplies in bf16 where it was built for AVX512-BF16 (``bf16_products``:
-the forward's and the input gradients' products from bf16 operands with float sums, the weights'
-gradients in float32, as autocast's layers but for the last), except on CPUs with AMX tiles, where
-autocast's oneDNN products keep the fields.
+every product from bf16 operands with float sums, as autocast's layers, whose weights' gradients are
+also rounded to bf16 where these stay float), except on CPUs with AMX tiles, where autocast's oneDNN
+products keep the fields.
 
 N: points, E: input channels, O: a layer's outputs.
 """

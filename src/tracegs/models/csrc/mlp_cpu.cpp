@@ -9,8 +9,8 @@
 // previous layer's activation derivative before it stores; the weight-gradient product sums the bias
 // gradient on the way. Values and gradients agree with the PyTorch layers to float rounding
 // (tests/models/test_fused_mlp.py). With ``bf16`` (a build for AVX512-BF16) the forward's and the
-// input gradients' products take bf16 operands (rounded to nearest even) with float sums; the
-// weights' gradients stay float.
+// input gradients' products take bf16 operands (rounded to nearest even) with float sums, and so do
+// the weights' gradients (bf16 pairs of rows: their sums run over the points).
 // The file also holds the fields' other per-step ops that were many small ATen ops: the positional
 // encoding and f_defo's output applied to the Gaussians (at the end; tests/models/test_native_field_ops.py).
 //
@@ -360,6 +360,20 @@ __attribute__((noinline)) void product_tiles(const std::vector<P>& pairs, const 
     }
 }
 
+// One chunk's share of db = the column sums of D (rows [0, cr) of D [., m]); nothing where pb is null.
+template <typename T>
+void bias_partial(const T* d, int64_t m, int64_t cr, T* pb) {
+    using V = typename VT<T>::v;
+    constexpr int64_t L = LANES<T>;
+    for (int64_t v = 0; pb != nullptr && v < m / L; ++v) {
+        V s{};
+        for (int64_t r = 0; r < cr; ++r) {
+            s += loadv(d + r * m + v * L);
+        }
+        storev(pb + v * L, s);
+    }
+}
+
 // One chunk's share of dW = D^T In and (unless pb is null) of db = the column sums of D: rows [0, cr)
 // of D [., m] and In [., k] (padded widths, row strides m and k), into pw [m, k] (its rows up to m_out
 // rounded up to OB) and pb [m]. The chunks are CHUNK_ROWS rows of the points, summed in order by
@@ -392,12 +406,106 @@ void weight_partial(const T* d, int64_t m, const T* in, int64_t k, int64_t cr, T
             }
         }
     }
-    for (int64_t v = 0; pb != nullptr && v < m / L; ++v) {
-        V s{};
-        for (int64_t r = 0; r < cr; ++r) {
-            s += loadv(d + r * m + v * L);
+    bias_partial<T>(d, m, cr, pb);
+}
+
+#if BF16_PRODUCTS
+// Rows [0, cr) of a float matrix [., w] (row stride w, a multiple of 16) as bf16 pairs of consecutive
+// rows, [ceil(cr / 2), w] (each value rounded to the nearest even; an odd count's last pair with a
+// zero): an operand of the weight gradients' bf16 products, whose sums run over rows.
+inline void row_pairs(const float* src, int64_t cr, int64_t w, uint32_t* dst) {
+    alignas(64) static const uint16_t order[32] = {0, 16, 1, 17, 2,  18, 3,  19, 4,  20, 5,  21, 6,  22, 7,  23,
+                                                   8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
+    const __m512i interleave = _mm512_load_si512(order);
+    for (int64_t r = 0; r < cr; r += 2) {
+        for (int64_t c = 0; c < w; c += 16) {
+            const __m256bh a = _mm512_cvtneps_pbh(_mm512_loadu_ps(src + r * w + c));
+            const __m256bh b = _mm512_cvtneps_pbh(r + 1 < cr ? _mm512_loadu_ps(src + (r + 1) * w + c) : _mm512_setzero_ps());
+            __m256i ai, bi;
+            std::memcpy(&ai, &a, sizeof(ai));
+            std::memcpy(&bi, &b, sizeof(bi));
+            const __m512i both = _mm512_inserti64x4(_mm512_castsi256_si512(ai), bi, 1);
+            _mm512_storeu_si512(dst + r / 2 * w + c, _mm512_permutexvar_epi16(interleave, both));
         }
-        storev(pb + v * L, s);
+    }
+}
+
+// Outputs [o0, o0 + OB) x vectors [v0, v0 + NV) of weight_partial_bf16's sums (NV a constant: the sums
+// stay in registers).
+template <int NV>
+inline void weight_block_bf16(const uint32_t* d2, int64_t m, const uint32_t* in2, int64_t k, int64_t pairs,
+                              int64_t o0, int64_t v0, float* pw) {
+    __m512 acc[OB][NV];
+    for (int o = 0; o < OB; ++o) {
+        for (int j = 0; j < NV; ++j) {
+            acc[o][j] = _mm512_setzero_ps();
+        }
+    }
+    for (int64_t p = 0; p < pairs; ++p) {
+        __m512bh iv[NV];
+        for (int j = 0; j < NV; ++j) {
+            iv[j] = (__m512bh)_mm512_loadu_si512(in2 + p * k + (v0 + j) * 16);
+        }
+        for (int o = 0; o < OB; ++o) {
+            const __m512bh dv = (__m512bh)_mm512_set1_epi32(int(d2[p * m + o0 + o]));
+            for (int j = 0; j < NV; ++j) {
+                acc[o][j] = _mm512_dpbf16_ps(acc[o][j], dv, iv[j]);
+            }
+        }
+    }
+    for (int o = 0; o < OB; ++o) {
+        for (int j = 0; j < NV; ++j) {
+            _mm512_storeu_ps(pw + (o0 + o) * k + (v0 + j) * 16, acc[o][j]);
+        }
+    }
+}
+
+// weight_partial with bf16 products: dW's chunk share from the rows' bf16 pairs (row_pairs' of D,
+// d2 [., m], and of In, in2 [., k]), float sums; db from the float rows of D.
+inline void weight_partial_bf16(const float* d, const uint32_t* d2, int64_t m, const uint32_t* in2, int64_t k,
+                                int64_t cr, float* pw, float* pb, int64_t m_out) {
+    const int64_t kv = k / 16, pairs = (cr + 1) / 2;
+    static_assert(GB == 4, "weight_partial_bf16 takes GB vectors or 1-3");
+    for (int64_t o0 = 0; o0 < m_out; o0 += OB) {
+        int64_t v0 = 0;
+        for (; v0 + GB <= kv; v0 += GB) {
+            weight_block_bf16<GB>(d2, m, in2, k, pairs, o0, v0, pw);
+        }
+        switch (kv - v0) {
+            case 3: weight_block_bf16<3>(d2, m, in2, k, pairs, o0, v0, pw); break;
+            case 2: weight_block_bf16<2>(d2, m, in2, k, pairs, o0, v0, pw); break;
+            case 1: weight_block_bf16<1>(d2, m, in2, k, pairs, o0, v0, pw); break;
+            default: break;
+        }
+    }
+    bias_partial<float>(d, m, cr, pb);
+}
+#endif
+
+// A chunk's partials of layer i's weight gradient (weight_partial's: D [cr, m] with In [cr, k], and its
+// bias') and, where ps is not null, of the skip weight's (D with the points' X [cr, ke]): from bf16
+// pairs of rows where ``pairs`` is not null (bf16 products; a thread's scratch, two halves of ``half``).
+template <typename T>
+void layer_partials(const T* d, int64_t m, const T* in, int64_t k, const T* x, int64_t ke, int64_t cr, T* pw,
+                    int64_t m_out, T* ps, int64_t s_out, uint32_t* pairs, int64_t half) {
+#if BF16_PRODUCTS
+    if constexpr (std::is_same_v<T, float>) {
+        if (pairs != nullptr) {  // (rounded as the other products' operands)
+            uint32_t* in2 = pairs + half;
+            row_pairs(d, cr, m, pairs);
+            row_pairs(in, cr, k, in2);
+            weight_partial_bf16(d, pairs, m, in2, k, cr, pw, pw + m * k, m_out);
+            if (ps != nullptr) {
+                row_pairs(x, cr, ke, in2);
+                weight_partial_bf16(d, pairs, m, in2, ke, cr, ps, nullptr, s_out);
+            }
+            return;
+        }
+    }
+#endif
+    weight_partial<T>(d, m, in, k, cr, pw, pw + m * k, m_out);
+    if (ps != nullptr) {
+        weight_partial<T>(d, m, x, ke, cr, ps, nullptr, s_out);
     }
 }
 
@@ -1021,6 +1129,7 @@ std::vector<at::Tensor> mlp_backward(
             const int64_t slot = CHUNK_ROWS * widest;
             std::unique_ptr<scalar_t[]> scratch(new scalar_t[2 * slot]);
             std::unique_ptr<uint16_t[]> scratch16(bf16 ? new uint16_t[3 * slot] : nullptr);
+            std::unique_ptr<uint32_t[]> pairs(bf16 ? new uint32_t[slot] : nullptr);  // (row_pairs' of dz, of h or x)
             // a SiLU layer's h and sigmoid, from its kept z (the forward keeps z only)
             std::unique_ptr<scalar_t[]> recomputed(activation == SILU && layers > 1 ? new scalar_t[2 * slot] : nullptr);
             for (int64_t c = c0; c < c1; ++c) {
@@ -1048,12 +1157,11 @@ std::vector<at::Tensor> mlp_backward(
                         in = h;
                     }
                     scalar_t* pw = partial.get() + offsets[i] + c * (m * k + m);
-                    weight_partial<scalar_t>(cur, m, in, k, cr, pw, pw + m * k, weights[i].size(0));
-                    if (i == skip_layer) {  // (its bias is the layer's)
-                        scalar_t* ps = partial.get() + offsets[layers] + c * (m * ke + m);
-                        weight_partial<scalar_t>(cur, m, input.data_ptr<scalar_t>() + r0 * ke, ke, cr, ps, nullptr,
-                                                 skip_weight->size(0));
-                    }
+                    // (the skip weight's: the same dz with x; its bias is the layer's)
+                    scalar_t* ps = i == skip_layer ? partial.get() + offsets[layers] + c * (m * ke + m) : nullptr;
+                    layer_partials<scalar_t>(cur, m, in, k, input.data_ptr<scalar_t>() + r0 * ke, ke, cr, pw,
+                                             weights[i].size(0), ps, ps ? skip_weight->size(0) : 0, pairs.get(),
+                                             slot / 2);
                     // d x += dz_i W_i (the first layer) and dz_i S (the skip layer; both where that is the first)
                     for (int64_t part = 0; wants_x && part < 2; ++part) {
                         if (part == 0 ? i != 0 : i != skip_layer) {
