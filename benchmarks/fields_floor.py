@@ -141,6 +141,27 @@ native ops on or off: the RK2 (``physics/fused.py``), the positional encoding (`
 and f_defo's output applied to the Gaussians (``models/deformation.py``, ``deform_rows``)."""
 
 
+def fixed_ms(model, t_prime: float, t: float, points: int = 16, blocks: int = 6, steps: int = 20) -> float:
+    """The step's time with its moving Gaussians cut to the first ``points``: what a step costs
+    whatever the points (Python, autograd, the ops' calls and threads' start), with the kernels in use."""
+    full = model._moving
+    rows = torch.arange(model.gaussians["means"].shape[0]) if full is None else full
+    model._moving = rows[:points]
+    try:
+        weights = loss_weights(model, t_prime, t)
+        for _ in range(5):
+            fields_step(model, t_prime, t, weights)
+        best = float("inf")
+        for _ in range(blocks):
+            start = time.perf_counter()
+            for _ in range(steps):
+                fields_step(model, t_prime, t, weights)
+            best = min(best, 1000 * (time.perf_counter() - start) / steps)
+    finally:
+        model._moving = full
+    return best
+
+
 def use_kernels(name: str) -> None:
     fused_mlp.ENABLED, native = KERNELS[name]
     fused.ENABLED = encoding.NATIVE = deformation.NATIVE_DEFORM = native
@@ -173,8 +194,12 @@ def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]
         for _ in range(steps):
             fields_step(model, t_prime, t, weights)
         best[name] = min(best[name], 1000 * (time.perf_counter() - start) / steps)
-    use_kernels("fused MLP + native ops")
     faults = (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults) / (len(names) * blocks * steps)
+    fixed = {}
+    for name in names:
+        use_kernels(name)
+        fixed[name] = fixed_ms(model, t_prime, t)
+    use_kernels("fused MLP + native ops")
     dtype = torch.bfloat16 if model.bf16 else torch.float32
     rate = gemm_rate(dtype)
     floor_ms = 1000 * flops / rate
@@ -195,6 +220,7 @@ def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]
             "gemms_alone_ms": round(gemms_ms, 2),
             "measured_ms": round(best[name], 2),
             "ratio": round(best[name] / floor_ms, 1),
+            "fixed_ms": round(fixed[name], 2),
             "page_faults_per_step": round(faults),
         }
         for name in names
@@ -256,7 +282,9 @@ def main() -> None:
                 "own matrix products (shapes, strides, dtypes) replayed alone. measured: the fastest of six "
                 "blocks of 20 steps, the kernels in alternate blocks (native ops: the RK2, the positional "
                 "encoding, f_defo's output applied to the Gaussians; fused MLP: float32, and bf16 with "
-                "AVX512-BF16 without AMX; gemms_alone: the PyTorch layers' products). "
+                "AVX512-BF16 without AMX; gemms_alone: the PyTorch layers' products). fixed: the same step "
+                "with 16 moving Gaussians, the part of measured that does not scale with them (Python, "
+                "autograd, the ops' calls). "
                 f"The heap keeps freed memory (glibc mallopt: {'yes' if kept else 'not available'}), as a "
                 "training's grown heap does. The run: the README demo's (fan, cpu-fast), alone on the "
                 "cores."
