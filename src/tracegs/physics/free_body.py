@@ -31,7 +31,7 @@ class FreeBody:
     """A rigid body's motion from its state at time ``t0``: pivot ``c0`` (a point of the body as it is
     at ``t0``) moving at ``v + a s`` (``s = t - t0``) from ``c0 + shift`` and turning about it at the
     constant angular velocity ``w`` (world frame, float64). ``shift`` moves the whole body at ``t0``:
-    where the images put it rather than f_defo (``train/calibrate.py``, ``refine_free_body``)."""
+    where the images put it rather than f_defo (``extrapolate/free_bodies.py``, ``refine_free_body``)."""
 
     c0: torch.Tensor
     v: torch.Tensor
