@@ -5,7 +5,7 @@ acceleration ``a_bar = a_c - w x v_c(t)`` changes in time, and what f_trd learns
 the training span is off (docs/PHYSICS.md, "A free body per part"). A free body holds it exactly:
 a pivot on a parabola ``c0 + v s + a s^2 / 2`` (gravity) and a constant spin ``w`` about it. It is
 the wrong model for a part on a hinge, which the learned physics holds by construction, so it is
-chosen per part after training (``train/calibrate.py``, ``choose_free_bodies``): a part that touches
+chosen per part after training (``extrapolate/free_bodies.py``, ``choose_free_bodies``): a part that touches
 nothing still (``isolation``) and whose free body does not predict the last training images clearly
 worse than the learned physics. The parts are found without labels (``rigid_components``).
 
