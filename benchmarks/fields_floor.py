@@ -43,19 +43,25 @@ from tracegs.results import make_record, write_record
 from tracegs.run import load_run
 
 
+def fastest_ms(call, blocks: int, calls: int, warmup: int = 0) -> float:
+    """Milliseconds per ``call()`` in the fastest of ``blocks`` blocks of ``calls`` calls, after
+    ``warmup`` calls (the other blocks ran beside whatever else the host did)."""
+    for _ in range(warmup):
+        call()
+    best = float("inf")
+    for _ in range(blocks):
+        start = time.perf_counter()
+        for _ in range(calls):
+            call()
+        best = min(best, 1000 * (time.perf_counter() - start) / calls)
+    return best
+
+
 def gemm_rate(dtype: torch.dtype, size: int = 2048, blocks: int = 6, repeats: int = 4) -> float:
     """FLOP/s of a [size, size] x [size, size] matrix product in ``dtype`` (the CPU's practical peak):
     the fastest of ``blocks`` blocks of ``repeats`` products."""
     a, b = torch.randn(size, size).to(dtype), torch.randn(size, size).to(dtype)
-    for _ in range(3):
-        a @ b
-    best = float("inf")
-    for _ in range(blocks):
-        start = time.perf_counter()
-        for _ in range(repeats):
-            a @ b
-        best = min(best, time.perf_counter() - start)
-    return 2 * size**3 * repeats / best
+    return 2 * size**3 / (fastest_ms(lambda: a @ b, blocks, repeats, warmup=3) / 1000)
 
 
 def keep_freed_memory() -> bool:
@@ -124,14 +130,12 @@ def gemms_alone_ms(model, t_prime: float, t: float, weights, blocks: int = 6, st
             torch.empty_strided(shape, stride, dtype=dtype).normal_() for shape, stride, dtype in operands
         ]
         replay.append((func, tensors))
-    best = float("inf")
-    for _ in range(blocks):
-        start = time.perf_counter()
-        for _ in range(steps):
-            for func, tensors in replay:
-                func(*tensors)
-        best = min(best, 1000 * (time.perf_counter() - start) / steps)
-    return best
+
+    def step():
+        for func, tensors in replay:
+            func(*tensors)
+
+    return fastest_ms(step, blocks, steps)
 
 
 KERNELS = {"fused MLP + native ops": (True, True), "native ops": (False, True), "pytorch": (False, False)}
@@ -149,17 +153,9 @@ def fixed_ms(model, t_prime: float, t: float, points: int = 16, blocks: int = 6,
     model._moving = rows[:points]
     try:
         weights = loss_weights(model, t_prime, t)
-        for _ in range(5):
-            fields_step(model, t_prime, t, weights)
-        best = float("inf")
-        for _ in range(blocks):
-            start = time.perf_counter()
-            for _ in range(steps):
-                fields_step(model, t_prime, t, weights)
-            best = min(best, 1000 * (time.perf_counter() - start) / steps)
+        return fastest_ms(lambda: fields_step(model, t_prime, t, weights), blocks, steps, warmup=5)
     finally:
         model._moving = full
-    return best
 
 
 def use_kernels(name: str) -> None:

@@ -164,10 +164,10 @@ def refine_free_body(
     window of a few frames the images cannot tell a pivot moved by ``d`` from a velocity and an
     acceleration changed by ``w x d`` and ``w x (w x d)``. The pivot's change of path is stepped as
     three displacements, the coefficients of the Legendre polynomials P0, P1, P2 over the frames'
-    span (orthogonal there, where ``shift``, ``v`` and ``a`` are strongly correlated: Adam, diagonal,
-    took 600 steps to settle the acceleration in those, and its result at 150 steps swung with the
-    views drawn), the spin as ``w + dw / (L R)`` (``L`` the largest time from ``t0`` in the span, ``R``
-    the part's radius); about a tenth of its Gaussian spacing a step at first."""
+    span (``legendre_to_path``; orthogonal there, where ``shift``, ``v`` and ``a`` are strongly
+    correlated and Adam, diagonal, settles the acceleration slowly), the spin as ``w + dw / (L R)``
+    (``L`` the largest time from ``t0`` in the span, ``R`` the part's radius); about a tenth of its
+    Gaussian spacing a step at first."""
     pairs = [(t, camera, gt) for t, views in frames.views.items() for camera, gt in views]
     lo, hi = min(frames.views, default=t0), max(frames.views, default=t0)
     span = max(abs(lo - t0), abs(hi - t0))
