@@ -1,12 +1,15 @@
 """Force laws of a coordinate: each integrates to its closed form, identification recovers known
 constants from exact and noisy samples, and the selection on the span's end picks the true law."""
 
+import warnings
+
 import numpy as np
 import pytest
 
 from tracegs.physics.force_law import (
     LAWS,
     constant_acceleration_solution,
+    friction_step,
     friction_stop_solution,
     integrate,
     pendulum_solution,
@@ -48,6 +51,14 @@ def test_constant_friction_and_pendulum_integrate_to_their_closed_forms():
         np.abs(integrated("pendulum", (-40 * np.cos(0.1), 40 * np.sin(0.1), 0.0), 2.1, 0.0, T) - want).max()
         < 1e-6 * 2.0
     )
+
+
+def test_friction_too_small_to_stop_the_motion_holds_the_speed_without_a_warning():
+    # mu so small that |v| / mu overflows: the stop lies past any step (a fit's constant near zero)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        q, v = friction_step(np.array([0.5]), np.array([2.0]), np.array([[1e-310]]), 0.1)
+    assert q[0] == pytest.approx(0.5 + 2.0 * 0.1) and v[0] == pytest.approx(2.0)
 
 
 def test_bounce_reverses_at_the_floor_with_the_restitution():

@@ -75,7 +75,8 @@ def friction_step(q: Array, v: Array, p: Array, dt: float) -> tuple[Array, Array
     ``|v| / mu``, then at rest (``v`` exactly 0, which stays 0)."""
     mu = np.clip(p[:, 0], 0.0, None)
     direction = np.sign(v)
-    t_stop = np.divide(np.abs(v), mu, out=np.full_like(v, np.inf), where=mu > 0)
+    with np.errstate(over="ignore"):  # (a tiny mu: the stop is past any step, inf as meant)
+        t_stop = np.divide(np.abs(v), mu, out=np.full_like(v, np.inf), where=mu > 0)
     stops = t_stop <= dt
     s = np.where(stops, t_stop, dt)
     q_new = q + v * s - 0.5 * direction * mu * s * s
