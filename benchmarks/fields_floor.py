@@ -7,7 +7,9 @@ operations are counted by PyTorch's own counter (`torch.utils.flop_counter.FlopC
 products only: what dominates a 4 x 64 MLP). The floor is that count at the best rate this CPU
 reaches in one large matrix product in the fields' dtype (bf16 where the run uses it, else float32),
 with the same threads. Ratio = measured time / floor. The step's own matrix products (their shapes and
-dtypes) are also timed replayed alone: what the fields would cost if every other op were free.
+dtypes) are also timed replayed alone: what the fields would cost if every other op were free; and so
+are its fused MLP calls (the native op's own forward and backward, as the step called them): the
+fields without the glue between those calls.
 
 The loop runs on a heap that keeps its freed memory (glibc ``mallopt``), as a training's grown heap
 does (0-5 page faults a step); the faults per step are reported. The kernels (the fused MLP with the
@@ -138,6 +140,42 @@ def gemms_alone_ms(model, t_prime: float, t: float, weights, blocks: int = 6, st
     return fastest_ms(step, blocks, steps)
 
 
+class _RecordMLPs:
+    """Stands in for the fields' native ops for one step: records the fused MLP calls' arguments."""
+
+    def __init__(self, ops):
+        self.ops, self.calls = ops, []
+
+    def __getattr__(self, name):  # (the encoding's and the deformation's ops, as they are)
+        return getattr(self.ops, name)
+
+    def mlp_forward(self, *args):
+        self.calls.append((self.ops.mlp_forward, args))
+        return self.ops.mlp_forward(*args)
+
+    def mlp_backward(self, *args):
+        self.calls.append((self.ops.mlp_backward, args))
+        return self.ops.mlp_backward(*args)
+
+
+def mlps_alone_ms(model, t_prime: float, t: float, weights, blocks: int = 6, steps: int = 20) -> float:
+    """The step's fused MLP calls (forward and backward, their inputs, settings and threads) replayed
+    alone: the fields' time without the glue between them (Python, autograd, the other ops). The
+    fastest block, per step."""
+    recorder = _RecordMLPs(fused_mlp.EXTENSION.load())
+    fused_mlp.EXTENSION.load = lambda: recorder  # (an instance attribute over the class' method)
+    try:
+        fields_step(model, t_prime, t, weights)
+    finally:
+        del fused_mlp.EXTENSION.load
+
+    def step():
+        for call, args in recorder.calls:
+            call(*args)
+
+    return fastest_ms(step, blocks, steps, warmup=2)
+
+
 KERNELS = {"fused MLP + native ops": (True, True), "native ops": (False, True), "pytorch": (False, False)}
 """Rows: the field MLPs' fused op (``models/fused_mlp.py``; float32, and bf16 where it has
 ``bf16_products``) on or off, and the other
@@ -202,6 +240,7 @@ def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]
     use_kernels("pytorch")
     gemms_ms = gemms_alone_ms(model, t_prime, t, weights)  # (the fused MLP runs its own products)
     use_kernels("fused MLP + native ops")
+    mlps_ms = mlps_alone_ms(model, t_prime, t, weights) if "fused MLP + native ops" in names else None
     rows = model.moving_rows
     moving = model.gaussians["means"].shape[0] if rows is None else rows.numel()
     return [
@@ -214,6 +253,7 @@ def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]
             "gemm_gflops": round(rate / 1e9, 1),
             "floor_ms": round(floor_ms, 3),
             "gemms_alone_ms": round(gemms_ms, 2),
+            "mlps_alone_ms": round(mlps_ms, 2) if mlps_ms is not None and KERNELS[name][0] else None,
             "measured_ms": round(best[name], 2),
             "ratio": round(best[name] / floor_ms, 1),
             "fixed_ms": round(fixed[name], 2),
@@ -275,7 +315,9 @@ def main() -> None:
                 "backward on the trained run's Gaussians, without the rasteriser; FLOPs of the matrix "
                 "products by torch.utils.flop_counter; floor = those FLOPs at the rate of a 2048^2 matrix "
                 "product in the same dtype and threads; ratio = measured / floor; gemms_alone: the step's "
-                "own matrix products (shapes, strides, dtypes) replayed alone. measured: the fastest of six "
+                "own matrix products (shapes, strides, dtypes) replayed alone; mlps_alone: the step's fused "
+                "MLP calls (forward and backward, their inputs and settings) replayed alone, the fields "
+                "without the glue between them. measured: the fastest of six "
                 "blocks of 20 steps, the kernels in alternate blocks (native ops: the RK2, the positional "
                 "encoding, f_defo's output applied to the Gaussians; fused MLP: float32, and bf16 with "
                 "AVX512-BF16 without AMX; gemms_alone: the PyTorch layers' products). fixed: the same step "
