@@ -57,3 +57,19 @@ def test_build_all_reports_an_extension_that_does_not_build(monkeypatch):
     (report,) = build_all(jobs=2)
     assert report["name"] == "tracegs_broken_cpu" and report["built"] is False
     assert "no such header" in report["error"] and ext.load() is None
+
+
+def test_the_build_is_keyed_by_cpu_source_and_flags(tmp_path):
+    """Two sources (two checkouts, two versions) build into two folders; the same source and flags
+    into the same one; and a build for another CPU never shares one."""
+    a, b = tmp_path / "a.cpp", tmp_path / "b.cpp"
+    a.write_text("// one version\n")
+    b.write_text("// one version\n")  # (the same text elsewhere: torch would rebuild on the path)
+    one, other = (NativeExtension("tracegs_x_cpu", src, "x", "y") for src in (a, b))
+    assert one.build_name(["-O3"], True) == NativeExtension("tracegs_x_cpu", a, "x", "y").build_name(
+        ["-O3"], True
+    )
+    assert one.build_name(["-O3"], True) != other.build_name(["-O3"], True)
+    assert one.build_name(["-O3"], True) != one.build_name(["-O2"], True)
+    assert one.build_name(["-O3"], False).endswith("_serial")
+    assert cpp.cpu_tag() in one.build_name(["-O3"], True)

@@ -164,12 +164,7 @@ class NativeExtension:
         if openmp:
             cflags.append("-fopenmp")
             ldflags.append("-fopenmp")
-        # -march=native binaries are CPU specific: key the cache by CPU so that a home directory shared
-        # between different machines never loads one built for another (SIGILL, no fallback possible).
-        tag = (
-            cpu_tag() if march() == "native" else f"{cpu_tag()}_{march().replace('-', '_').replace('.', '_')}"
-        )
-        name = f"{self.name}_{tag}" + ("" if openmp else "_serial")
+        name = self.build_name(cflags + ldflags, openmp)
         build_dir = _build_directory(name)
         if build_dir is not None:
             wait_for_build_lock(build_dir)
@@ -183,6 +178,20 @@ class NativeExtension:
         import torch
 
         return getattr(torch.ops, self.name)  # the source's TORCH_LIBRARY(<name>, m) registered these
+
+    def build_name(self, flags: list[str], openmp: bool) -> str:
+        """The build's folder name in torch's cache: the extension's name, the CPU, and the source (its
+        path and text) and flags. -march=native binaries are CPU specific: keyed by CPU, a home
+        directory shared between different machines never loads one built for another (SIGILL, no
+        fallback possible). Keyed by source, two checkouts (a user's install beside a clone, a
+        benchmark of an older commit) each keep their build instead of rebuilding the other's on every
+        switch: torch keeps one build per name and rebuilds when the source's path or text differs."""
+        tag = (
+            cpu_tag() if march() == "native" else f"{cpu_tag()}_{march().replace('-', '_').replace('.', '_')}"
+        )
+        key = [str(self.source.resolve()), self.source.read_text(), *flags]
+        content = hashlib.sha1("\0".join(key).encode()).hexdigest()[:8]
+        return f"{self.name}_{tag}_{content}" + ("" if openmp else "_serial")
 
     def load(self):
         """Build (first call) or return the module; ``None`` (with one warning) if that fails."""
