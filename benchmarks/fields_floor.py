@@ -12,10 +12,10 @@ are its fused MLP calls (the native op's own forward and backward, as the step c
 fields without the glue between those calls.
 
 The loop runs on a heap that keeps its freed memory (glibc ``mallopt``), as a training's grown heap
-does (0-5 page faults a step); the faults per step are reported. The kernels (the fused MLP with the
-other native ops: the RK2, the positional encoding, f_defo's output applied; those without the fused
-MLP; none) are measured in alternate blocks of one process, each row
-taking its fastest block.
+does (0-5 page faults a step); the faults per step are reported. The kernels (all the native ops as
+the step's one autograd node; the fused MLP with the other native ops, the RK2, the positional
+encoding, f_defo's output applied, each its own node; those without the fused MLP; none) are
+measured in alternate blocks of one process, each row taking its fastest block.
 
 Run it alone on the machine. Usage:
 .venv/bin/python benchmarks/fields_floor.py --run runs/demo/trace [--fields run|bf16|fp32] [--isa native|avx2]
@@ -40,6 +40,7 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from tracegs.cpp import ISA_ENVIRONMENTS, json_of_process_held_to
 from tracegs.models import deformation, encoding, fused_mlp
+from tracegs.models import fields_step as one_node
 from tracegs.physics import fused
 from tracegs.results import make_record, write_record
 from tracegs.run import load_run
@@ -176,11 +177,17 @@ def mlps_alone_ms(model, t_prime: float, t: float, weights, blocks: int = 6, ste
     return fastest_ms(step, blocks, steps, warmup=2)
 
 
-KERNELS = {"fused MLP + native ops": (True, True), "native ops": (False, True), "pytorch": (False, False)}
+KERNELS = {
+    "one node": (True, True, True),
+    "fused MLP + native ops": (True, True, False),
+    "native ops": (False, True, False),
+    "pytorch": (False, False, False),
+}
 """Rows: the field MLPs' fused op (``models/fused_mlp.py``; float32, and bf16 where it has
-``bf16_products``) on or off, and the other
-native ops on or off: the RK2 (``physics/fused.py``), the positional encoding (``models/encoding.py``)
-and f_defo's output applied to the Gaussians (``models/deformation.py``, ``deform_rows``)."""
+``bf16_products``) on or off, the other native ops on or off (the RK2, ``physics/fused.py``; the
+positional encoding, ``models/encoding.py``; f_defo's output applied to the Gaussians,
+``models/deformation.py``, ``deform_rows``), and all of them run as the step's one autograd node
+(``models/fields_step.py``) or each as its own."""
 
 
 def fixed_ms(model, t_prime: float, t: float, points: int = 16, blocks: int = 6, steps: int = 20) -> float:
@@ -197,7 +204,7 @@ def fixed_ms(model, t_prime: float, t: float, points: int = 16, blocks: int = 6,
 
 
 def use_kernels(name: str) -> None:
-    fused_mlp.ENABLED, native = KERNELS[name]
+    fused_mlp.ENABLED, native, one_node.ENABLED = KERNELS[name]
     fused.ENABLED = encoding.NATIVE = deformation.NATIVE_DEFORM = native
     fused_mlp.MIN_VECTOR_BYTES = 0  # (measured on any build: the fields take it with AVX-512 only)
 
@@ -233,14 +240,14 @@ def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]
     for name in names:
         use_kernels(name)
         fixed[name] = fixed_ms(model, t_prime, t)
-    use_kernels("fused MLP + native ops")
+    use_kernels("one node")
     dtype = torch.bfloat16 if model.bf16 else torch.float32
     rate = gemm_rate(dtype)
     floor_ms = 1000 * flops / rate
     use_kernels("pytorch")
     gemms_ms = gemms_alone_ms(model, t_prime, t, weights)  # (the fused MLP runs its own products)
-    use_kernels("fused MLP + native ops")
-    mlps_ms = mlps_alone_ms(model, t_prime, t, weights) if "fused MLP + native ops" in names else None
+    use_kernels("one node")
+    mlps_ms = mlps_alone_ms(model, t_prime, t, weights) if "one node" in names else None
     rows = model.moving_rows
     moving = model.gaussians["means"].shape[0] if rows is None else rows.numel()
     return [
@@ -320,7 +327,8 @@ def main() -> None:
                 "without the glue between them. measured: the fastest of six "
                 "blocks of 20 steps, the kernels in alternate blocks (native ops: the RK2, the positional "
                 "encoding, f_defo's output applied to the Gaussians; fused MLP: float32, and bf16 with "
-                "AVX512-BF16 without AMX; gemms_alone: the PyTorch layers' products). fixed: the same step "
+                "AVX512-BF16 without AMX; one node: all of them as the step's one autograd node, "
+                "models/fields_step.py; gemms_alone: the PyTorch layers' products). fixed: the same step "
                 "with 16 moving Gaussians, the part of measured that does not scale with them (Python, "
                 "autograd, the ops' calls). "
                 f"The heap keeps freed memory (glibc mallopt: {'yes' if kept else 'not available'}), as a "

@@ -17,6 +17,7 @@ from torch import nn
 from ..physics.free_body import median_spacing
 from ..physics.integrate import acceleration_consistency, integrate_rows, integrate_states, params_in_world
 from ..render import rasterize
+from . import fields_step
 from .colour import CameraColour
 from .deformation import deform_rows, make_deformation_field
 from .dynamics import DynamicsField
@@ -219,11 +220,15 @@ class TraceModel(nn.Module):
         TRACE: deform to t', query f_trd at (x_t', t'), integrate t' -> t, and pass f_defo(t')'s
         gradient straight through to the rendered position (the physics starts from a detached x_t').
         DefGS: f_defo(t) alone. ``t_check``: where the acceleration consistency
-        reads f_trd's velocities again (default ``t``; ``Stage2Config.consistency_frames``).
+        reads f_trd's velocities again (default ``t``; ``Stage2Config.consistency_frames``). Where
+        ``fields_step.applies`` (the CPU presets' fields), the same computation runs as one autograd
+        node (``models/fields_step.py``, the same bits).
         """
         stage = self.cfg.stage2
         if self.dynamics is None:
             return self.deform(t), {}
+        if fields_step.applies(self, t_prime, t):  # (the same step as one autograd node)
+            return fields_step.training_state(self, t_prime, t, t_check)
         if self.deformation is None:  # ablation "no f_defo": dynamics carry the canonical Gaussians from 0
             t_prime = 0.0
         straight_through = self.deformation is not None
