@@ -6,7 +6,8 @@ encodings, the deformation applied, the RK2), each with its own autograd node an
 between them: at the demo's sizes that glue (Python, autograd's nodes and saved tensors, the
 gathers and copies) took about a third of the fields' time. Here the same native ops run in
 sequence in one ``torch.autograd.Function``, and its backward calls their backward ops in reverse:
-the same function, values and gradients to float rounding (tests/models/test_fields_step.py).
+the same operations in the same order, hence the same values and gradients to the bit
+(tests/models/test_fields_step.py).
 
 It serves the configuration it was written for, and ``applies`` says where: a CPU, float32, the
 Deformable-3DGS MLP (inputs detached) with a second-order equivalent f_trd whose time has its own
@@ -65,11 +66,11 @@ def applies(model, t_prime: float, t: float) -> bool:
         model.gaussians[k].dtype != torch.float32 for k in ("means", "quats", "scales")
     ):
         return False
-    if not (encoding.NATIVE and deformation.NATIVE_DEFORM and fused.ENABLED and fused_mlp.ENABLED):
+    if not (
+        encoding.NATIVE and deformation.NATIVE_DEFORM and fused.ENABLED and fused_mlp.serves(_bf16(model))
+    ):
         return False
-    if fused_mlp._vector_bytes() < fused_mlp.MIN_VECTOR_BYTES or fused.EXTENSION.load() is None:
-        return False
-    if _bf16(model) and not fused_mlp.bf16_products():
+    if fused.EXTENSION.load() is None:
         return False
     rows = model.moving_rows
     return (means.shape[0] if rows is None else rows.numel()) >= 2  # (the fused MLP's smallest input)

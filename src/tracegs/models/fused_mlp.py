@@ -40,13 +40,21 @@ def applies(x: torch.Tensor) -> bool:
     """Whether ``fused_mlp`` serves the encoded inputs ``x`` [N, E]: float32 or float64 on the CPU,
     with the extension built for vectors of ``MIN_VECTOR_BYTES``; under bf16 autocast where the op has
     ``bf16_products``."""
-    if not ENABLED or x.device.type != "cpu" or x.dim() != 2 or x.shape[0] < 2:
+    if (
+        x.device.type != "cpu"
+        or x.dim() != 2
+        or x.shape[0] < 2
+        or x.dtype not in (torch.float32, torch.float64)
+    ):
         return False
-    if x.dtype not in (torch.float32, torch.float64):
-        return False
-    if _autocast_bf16() and (x.dtype != torch.float32 or not bf16_products()):
-        return False
-    return _vector_bytes() >= MIN_VECTOR_BYTES
+    bf16 = _autocast_bf16()
+    return serves(bf16) and not (bf16 and x.dtype != torch.float32)
+
+
+def serves(bf16: bool) -> bool:
+    """Whether the op serves the fields here at all (``ENABLED``, built with vectors of
+    ``MIN_VECTOR_BYTES``), with bf16 products where ``bf16`` (``bf16_products``)."""
+    return ENABLED and _vector_bytes() >= MIN_VECTOR_BYTES and (not bf16 or bf16_products())
 
 
 def _autocast_bf16() -> bool:
