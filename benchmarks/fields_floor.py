@@ -14,8 +14,8 @@ fields without the glue between those calls.
 The loop runs on a heap that keeps its freed memory (glibc ``mallopt``), as a training's grown heap
 does (0-5 page faults a step); the faults per step are reported. The kernels (all the native ops as
 the step's one autograd node; the fused MLP with the other native ops, the RK2, the positional
-encoding, f_defo's output applied, each its own node; those without the fused MLP; none) are
-measured in alternate blocks of one process, each row taking its fastest block.
+encoding, f_defo's output applied, each its own node; none) are measured in alternate blocks of one
+process, each row taking its fastest block.
 
 Run it alone on the machine. Usage:
 .venv/bin/python benchmarks/fields_floor.py --run runs/demo/trace [--fields run|bf16|fp32] [--isa native|avx2]
@@ -180,14 +180,13 @@ def mlps_alone_ms(model, t_prime: float, t: float, weights, blocks: int = 6, ste
 KERNELS = {
     "one node": (True, True, True),
     "fused MLP + native ops": (True, True, False),
-    "native ops": (False, True, False),
     "pytorch": (False, False, False),
 }
 """Rows: the field MLPs' fused op (``models/fused_mlp.py``; float32, and bf16 where it has
-``bf16_products``) on or off, the other native ops on or off (the RK2, ``physics/fused.py``; the
-positional encoding, ``models/encoding.py``; f_defo's output applied to the Gaussians,
-``models/deformation.py``, ``deform_rows``), and all of them run as the step's one autograd node
-(``models/fields_step.py``) or each as its own."""
+``bf16_products``) with the other native ops (the RK2, ``physics/fused.py``; the positional
+encoding, ``models/encoding.py``; f_defo's output applied to the Gaussians, ``models/deformation.py``,
+``deform_rows``), all of them as the step's one autograd node (``models/fields_step.py``) or each as
+its own; or none of them (the PyTorch layers and ops)."""
 
 
 def fixed_ms(model, t_prime: float, t: float, points: int = 16, blocks: int = 6, steps: int = 20) -> float:
