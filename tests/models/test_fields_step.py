@@ -10,10 +10,12 @@ from tracegs.config import make_config
 from tracegs.models import fields_step, fused_mlp
 
 
-def _model(rows: bool, bf16: bool = False, **settings):
+def _model(rows: bool, bf16: bool = False, frame: bool = False, **settings):
     cfg = make_config("tiny", **{"stage2.acceleration_consistency": 0.5, **settings})
     cfg.bf16 = bf16
     model = randomised_model(cfg, n=300)
+    if frame:  # (the fields see (x - centre) / scale, ``TraceModel.set_field_frame``)
+        model.set_field_frame(torch.tensor([0.3, -0.2, 0.1]), 1.7)
     if rows:
         model.set_static_mask(torch.rand(300, generator=torch.Generator().manual_seed(1)) < 0.4)
     return model
@@ -42,6 +44,7 @@ needs_node = pytest.mark.skipif(
 
 
 @needs_node
+@pytest.mark.parametrize("frame", [False, True], ids=["world frame", "own frame"])
 @pytest.mark.parametrize("rows", [False, True], ids=["all moving", "static rows"])
 @pytest.mark.parametrize("t_check", [None, 0.1], ids=["check at t", "check at t_check"])
 @pytest.mark.parametrize(
@@ -56,8 +59,8 @@ needs_node = pytest.mark.skipif(
     ],
     ids=["cpu-fast", "shared head", "own rates, no stop", "no consistency", "no derivation", "relu, no skip"],
 )
-def test_one_node_is_the_general_path_to_the_bit(rows, t_check, settings):
-    model = _model(rows, **settings)
+def test_one_node_is_the_general_path_to_the_bit(frame, rows, t_check, settings):
+    model = _model(rows, frame=frame, **settings)
     assert fields_step.applies(model, 0.25, 0.4)
     got, got_grads = _step(model, node=True, t_check=t_check)
     want, want_grads = _step(model, node=False, t_check=t_check)
@@ -74,7 +77,7 @@ def test_one_node_is_the_general_path_to_the_bit(rows, t_check, settings):
 @pytest.mark.skipif(not fused_mlp.bf16_products(), reason="no bf16 products in this build")
 @needs_node
 def test_one_node_in_bf16_is_the_general_path_to_the_bit():
-    model = _model(rows=True, bf16=True)
+    model = _model(rows=True, bf16=True, frame=True)
     got, got_grads = _step(model, node=True)
     want, want_grads = _step(model, node=False)
     for key in want:
@@ -101,10 +104,8 @@ def test_other_configurations_take_the_general_path(settings):
     model.training_state(0.25, 0.4)  # (and still train)
 
 
-def test_no_node_without_gradients_or_time_or_world_frame():
+def test_no_node_without_gradients_or_a_time_step():
     model = _model(rows=False)
     with torch.no_grad():
         assert not fields_step.applies(model, 0.25, 0.4)
     assert not fields_step.applies(model, 0.25, 0.25)
-    model.set_field_frame(torch.tensor([0.5, 0.0, 0.0]), 2.0)
-    assert not fields_step.applies(model, 0.25, 0.4)

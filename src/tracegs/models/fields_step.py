@@ -11,7 +11,9 @@ the same operations in the same order, hence the same values and gradients to th
 
 It serves the configuration it was written for, and ``applies`` says where: a CPU, float32, the
 Deformable-3DGS MLP (inputs detached) with a second-order equivalent f_trd whose time has its own
-frequencies, the fields in the world frame, the midpoint RK2, and the native ops built. Elsewhere
+frequencies, the midpoint RK2, and the native ops built; the fields in the world's frame or their
+own (``TraceModel.set_field_frame``: then ``integrate.params_in_world``'s conversion and its
+gradient, as autograd computes them). Elsewhere
 (and with ``ENABLED = False``) ``training_state`` runs the general path.
 
 N: Gaussians, M: the moving rows.
@@ -57,7 +59,7 @@ def applies(model, t_prime: float, t: float) -> bool:
     dyn = cfg.dynamics
     if dyn.order != 2 or not dyn.equivalent or dyn.time_frequencies is None:
         return False
-    if not model.fields_see_world or stage.integrator != "rk2" or float(t) == float(t_prime):
+    if stage.integrator != "rk2" or float(t) == float(t_prime):
         return False
     if num_substeps(float(t) - float(t_prime), model.dt_max) > fused.MAX_STEPS:
         return False
@@ -121,6 +123,7 @@ def training_state(model, t_prime: float, t: float, t_check: float | None):
         rows=rows,
         chains=chains,
         identity=head.identity,
+        frame=None if model.fields_see_world else (model.field_center, float(model.field_scale)),
         bf16=_bf16(model),
         t_prime=float(t_prime),
         query_time=float(t_prime if stage.physics_derivation else t),
@@ -151,6 +154,7 @@ class _Plan:
     rows: torch.Tensor | None
     chains: list[_Chain]
     identity: torch.Tensor  # f_defo's rotation head adds it (``DeformationHeads``)
+    frame: tuple[torch.Tensor, float] | None  # the fields' frame (centre, scale); None: the world's
     bf16: bool
     t_prime: float
     query_time: float
@@ -194,16 +198,18 @@ class _FieldsStep(torch.autograd.Function):
         lx, lt, ldx, ldt = plan.frequencies
 
         # f_defo at t' on the moving rows, applied to the canonical Gaussians (``TraceModel.deform``)
-        x0 = _rows(means0, rows).contiguous()
+        x0 = _to_field(_rows(means0, rows), plan.frame).contiguous()
         defo_in = ops.positional_encoding(x0, lx, True)
         defo_row = _time_row(plan.t_prime, x0, lt, ops)
         dx, dq, ds, *defo_saved = _mlp(ops, defo, defo_in, w_defo, b_defo, defo_row, plan.bf16, True)
         dq = dq + plan.identity  # (``DeformationHeads.finish``)
+        if plan.frame is not None:
+            dx = dx * plan.frame[1]
         means_s, quats_s, scales_s = ops.deform_forward(means0, quats0, scales0, rows, dx, dq, ds)
 
         # f_trd at (x_t', t'), from the deformed positions without their gradient
         x_run = _rows(means_s, rows).contiguous()
-        trd_in = ops.positional_encoding(x_run, ldx, True)
+        trd_in = ops.positional_encoding(_to_field(x_run, plan.frame).contiguous(), ldx, True)
         trd_row = _time_row(plan.query_time, x_run, ldt, ops)
         out = _mlp(ops, trd, trd_in, w_trd, b_trd, trd_row, plan.bf16, True)
         named = dict(zip(trd.names, out, strict=False))
@@ -216,6 +222,7 @@ class _FieldsStep(torch.autograd.Function):
         zero = torch.zeros_like(named["velocity"])
         v, w = named["velocity"], named["angular_velocity"]
         a, e = named.get("acceleration", zero), named.get("angular_acceleration", zero)
+        v, a = _world(v, w, plan.frame), _world(a, e, plan.frame)  # (``integrate.params_in_world``)
 
         # the RK2 from t' to t of the moving rows (``fused.fused_rk2_rows``, straight through)
         x_rows, q_rows = x_run, _rows(quats_s, rows).contiguous()
@@ -239,12 +246,13 @@ class _FieldsStep(torch.autograd.Function):
         else:
             params = DynamicsParams(v, w, a, e)
             x_check = integrate_states(x_run, None, params, s, plan.dt_max, "rk2")[0].contiguous()
-        check_in = ops.positional_encoding(x_check, ldx, True)
+        check_in = ops.positional_encoding(_to_field(x_check, plan.frame).contiguous(), ldx, True)
         check_row = _time_row(plan.t_check, x_check, ldt, ops)
         later = _mlp(ops, trd, check_in, w_trd, b_trd, check_row, plan.bf16, False)
         later = dict(zip(trd.names, later[: len(trd.names)], strict=True))
         # ``fused.second_order_consistency``: the same operations in the same order
-        gaps = [v + s * a - later["velocity"], w + s * e - later["angular_velocity"]]
+        v_later = _world(later["velocity"], later["angular_velocity"], plan.frame)
+        gaps = [v + s * a - v_later, w + s * e - later["angular_velocity"]]
         ctx.signs = [torch.sign(gap) for gap in gaps]
         gap = (gaps[0].abs().mean() + gaps[1].abs().mean()) / abs(s)
         return means_t, quats_t, scales_s, plan.consistency * gap
@@ -268,6 +276,12 @@ class _FieldsStep(torch.autograd.Function):
             per = g_loss * plan.consistency / abs(s) / ctx.signs[0].numel()
             ga = ga + ctx.signs[0] * per * s
             ge = ge + ctx.signs[1] * per * s
+        if plan.frame is not None:  # ``params_in_world``'s backward, as autograd's: scale, then the cross
+            centre, scale = plan.frame
+            centre = centre.to(gw).expand_as(gw)
+            gw = gw + torch.linalg.cross(centre, -gv, dim=-1)
+            ge = ge + torch.linalg.cross(centre, -ga, dim=-1)
+            gv, ga = gv * scale, ga * scale
         named = {"velocity": gv, "angular_velocity": gw, "acceleration": ga, "angular_acceleration": ge}
 
         d_trd = _mlp_backward(ops, trd, [named[n] for n in trd.names], trd_saved, w_trd, trd_row, plan.bf16)
@@ -280,12 +294,27 @@ class _FieldsStep(torch.autograd.Function):
         g_quats_s = _put_rows(g_quats, rows, gq0)
         quats0, dq = ctx.deform
         gq_canonical, gdx, gdq, gds = ops.deform_backward(g_quats_s, g_means, g_scales, quats0, rows, dq)
+        if plan.frame is not None:
+            gdx = gdx * plan.frame[1]
         d_defo = _mlp_backward(ops, defo, [gdx, gdq, gds], defo_saved, w_defo, defo_row, plan.bf16)
         # the three heads' rows of the stacked last layer
         heads_w, heads_b = d_defo[0][-1].split(HEAD_COLUMNS), d_defo[1][-1].split(HEAD_COLUMNS)
         grads_w = [*d_defo[0][:-1], *heads_w, *d_trd[0], *d_own[0]]
         grads_b = [*d_defo[1][:-1], *heads_b, *d_trd[1], *d_own[1]]
         return None, g_means, gq_canonical, g_scales, *grads_w, *grads_b
+
+
+def _to_field(x: torch.Tensor, frame) -> torch.Tensor:
+    """World positions as the fields see them (``TraceModel.to_field_frame``)."""
+    return x if frame is None else (x - frame[0]) / frame[1]
+
+
+def _world(linear: torch.Tensor, angular: torch.Tensor, frame) -> torch.Tensor:
+    """A field-frame velocity (or acceleration) in the world, with its rotational partner
+    (``integrate.params_in_world``'s ``world``, the same operations)."""
+    if frame is None:
+        return linear
+    return frame[1] * linear - torch.cross(angular, frame[0].to(angular).expand_as(angular), dim=-1)
 
 
 def _mlp(ops, chain: _Chain, x, weights, biases, time_row, bf16: bool, save: bool):
