@@ -245,9 +245,8 @@ class DynamicsField(nn.Module):
         (``detach_acceleration_features``) inside it too, and the own MLP with its head as another on
         the same encoding (two first-layer products, the same FLOPs as one stacked)."""
 
-        def chain(mlp: nn.Sequential, head: nn.Linear, names: list[str], stop_from: int | None = None):
-            layers = [*[m for m in mlp if isinstance(m, nn.Linear)], head]
-            rates = [i for i, name in enumerate(names) if name in ACCELERATIONS]  # (the last ones)
+        named = {}
+        for layers, names, stop_from, scaled_from in self.fused_chains(rates):
             outs = fused_mlp.fused_mlp_of_parts(
                 parts,
                 [layer.weight for layer in layers],
@@ -255,21 +254,35 @@ class DynamicsField(nn.Module):
                 self.cfg.activation,
                 stop_from=stop_from,
                 groups=(3,) * len(names),
-                scaled_from=3 * rates[0] if rates else None,
+                scaled_from=scaled_from,
                 scale=self.cfg.acceleration_scale,
             )
-            return dict(zip(names, outs, strict=True))
-
-        start = self._head_rates_start
-        stop = rates and start is not None and self.cfg.detach_acceleration_features
-        named = chain(self.mlp, self.head, self.head_names, start if stop else None)
-        if rates and self.separate_accelerations:
-            named |= chain(self.acceleration_mlp, self.acceleration_head, self.own_names)
+            named |= dict(zip(names, outs, strict=True))
         return {
             name: named[name]
             for name in self.slices
             if name in named and (rates or name not in ACCELERATIONS)
         }
+
+    def fused_chains(
+        self, rates: bool = True
+    ) -> list[tuple[list[nn.Linear], list[str], int | None, int | None]]:
+        """The fused op's calls of ``outputs``: per MLP its layers (the head last), the names of its
+        output groups, the output column from which its input gets no gradient (``stop_from``:
+        ``detach_acceleration_features``) and from which its outputs are rates scaled r |r| / scale
+        (``scaled_from``; None: none). The own rates' MLP only with ``rates``."""
+
+        def chain(mlp: nn.Sequential, head: nn.Linear, names: list[str], stop_from: int | None):
+            scaled = [i for i, name in enumerate(names) if name in ACCELERATIONS]  # (the last ones)
+            layers = [*[m for m in mlp if isinstance(m, nn.Linear)], head]
+            return layers, names, stop_from, 3 * scaled[0] if scaled else None
+
+        start = self._head_rates_start
+        stop = rates and start is not None and self.cfg.detach_acceleration_features
+        chains = [chain(self.mlp, self.head, self.head_names, start if stop else None)]
+        if rates and self.separate_accelerations:
+            chains.append(chain(self.acceleration_mlp, self.acceleration_head, self.own_names, None))
+        return chains
 
     def forward(self, x: torch.Tensor, t: float | torch.Tensor, rates: bool = True) -> DynamicsParams:
         """Dynamics parameters of particles at positions ``x`` [N, 3] at time ``t`` (float or [N, 1]);

@@ -26,10 +26,13 @@ from dataclasses import dataclass
 import torch
 
 from ..physics import fused
-from ..physics.integrate import DynamicsParams, integrate_states, num_substeps
+from ..physics.integrate import DynamicsParams, integrate_states, num_substeps, params_in_world
 from . import deformation, encoding, fused_mlp
 from .deformation import HEAD_COLUMNS, DeformationField
-from .dynamics import ACCELERATIONS
+from .encoding import positional_encoding, time_rows
+
+ORDER_TWO = ("velocity", "angular_velocity", "acceleration", "angular_acceleration")
+"""f_trd's outputs of a second-order equivalent field, in ``DynamicsParams``' order."""
 
 ENABLED = True
 """Take the one node where it applies (False: the general path, to compare)."""
@@ -82,11 +85,6 @@ def _bf16(model) -> bool:
     return bool(model.bf16) and model.aabb.device.type == "cpu"  # (``TraceModel.autocast``)
 
 
-def _time_row(t: float, like: torch.Tensor, frequencies: int, ops) -> torch.Tensor:
-    """The encoded time of a frame [1, 1 + 2 L] (``encoding.time_rows`` then the encoding)."""
-    return ops.positional_encoding(torch.full((1, 1), float(t), dtype=like.dtype), frequencies, True)
-
-
 def training_state(model, t_prime: float, t: float, t_check: float | None):
     """``TraceModel.training_state`` for a step where ``applies``: the Gaussians at ``t`` and the
     weighted auxiliary losses, by one autograd node."""
@@ -99,19 +97,11 @@ def training_state(model, t_prime: float, t: float, t_check: float | None):
     relu = fused_mlp.ACTIVATION_CODES["relu"]
     chains = [_Chain(["dx", "dq", "dlog_s"], list(HEAD_COLUMNS), len(defo_layers), relu, skip)]
     act, scale = fused_mlp.ACTIVATION_CODES[dyn.cfg.activation], float(dyn.cfg.acceleration_scale)
-    linears = [*[m for m in dyn.mlp if isinstance(m, torch.nn.Linear)], dyn.head]
-    rates = [i for i, name in enumerate(dyn.head_names) if name in ACCELERATIONS]
-    start = dyn._head_rates_start
-    stop = start if start is not None and dyn.cfg.detach_acceleration_features else -1
-    names = list(dyn.head_names)
-    chains.append(
-        _Chain(names, [3] * len(names), len(linears), act, -1, stop, 3 * rates[0] if rates else -1, scale)
-    )
-    own = []
-    if dyn.separate_accelerations:  # (its outputs are all rates, scaled from its first column)
-        own = [*[m for m in dyn.acceleration_mlp if isinstance(m, torch.nn.Linear)], dyn.acceleration_head]
-        names = list(dyn.own_names)
-        chains.append(_Chain(names, [3] * len(names), len(own), act, -1, -1, 0, scale))
+    layers = list(defo_layers)
+    for linears, names, stop_from, scaled_from in dyn.fused_chains():  # (f_trd's, as ``outputs`` calls them)
+        stop, scaled = -1 if stop_from is None else stop_from, -1 if scaled_from is None else scaled_from
+        chains.append(_Chain(list(names), [3] * len(names), len(linears), act, -1, stop, scaled, scale))
+        layers += linears
     moving = g["means"].shape[0] if rows is None else rows.numel()
     t_check = t if t_check is None else t_check
     consistency = stage.acceleration_consistency > 0 and stage.physics_derivation and t_check != t_prime
@@ -124,6 +114,7 @@ def training_state(model, t_prime: float, t: float, t_check: float | None):
         chains=chains,
         identity=head.identity,
         frame=None if model.fields_see_world else (model.field_center, float(model.field_scale)),
+        to_field=model.to_field_frame,
         bf16=_bf16(model),
         t_prime=float(t_prime),
         query_time=float(t_prime if stage.physics_derivation else t),
@@ -140,7 +131,6 @@ def training_state(model, t_prime: float, t: float, t_check: float | None):
         ),
         consistency=(stage.acceleration_consistency * share) if consistency else None,
     )
-    layers = [layer for layers in (defo_layers, linears, own) for layer in layers]
     tensors = [layer.weight for layer in layers] + [layer.bias for layer in layers]
     out = _FieldsStep.apply(plan, g["means"], g["quats"], g["scales"], *tensors)
     losses = {"acceleration": out[3]} if consistency else {}
@@ -155,6 +145,7 @@ class _Plan:
     chains: list[_Chain]
     identity: torch.Tensor  # f_defo's rotation head adds it (``DeformationHeads``)
     frame: tuple[torch.Tensor, float] | None  # the fields' frame (centre, scale); None: the world's
+    to_field: object  # world positions as the fields see them (``TraceModel.to_field_frame``)
     bf16: bool
     t_prime: float
     query_time: float
@@ -198,9 +189,9 @@ class _FieldsStep(torch.autograd.Function):
         lx, lt, ldx, ldt = plan.frequencies
 
         # f_defo at t' on the moving rows, applied to the canonical Gaussians (``TraceModel.deform``)
-        x0 = _to_field(_rows(means0, rows), plan.frame).contiguous()
-        defo_in = ops.positional_encoding(x0, lx, True)
-        defo_row = _time_row(plan.t_prime, x0, lt, ops)
+        x0 = plan.to_field(_rows(means0, rows))
+        defo_in = positional_encoding(x0, lx)
+        defo_row = positional_encoding(time_rows(plan.t_prime, x0), lt)
         dx, dq, ds, *defo_saved = _mlp(ops, defo, defo_in, w_defo, b_defo, defo_row, plan.bf16, True)
         dq = dq + plan.identity  # (``DeformationHeads.finish``)
         if plan.frame is not None:
@@ -209,8 +200,8 @@ class _FieldsStep(torch.autograd.Function):
 
         # f_trd at (x_t', t'), from the deformed positions without their gradient
         x_run = _rows(means_s, rows).contiguous()
-        trd_in = ops.positional_encoding(_to_field(x_run, plan.frame).contiguous(), ldx, True)
-        trd_row = _time_row(plan.query_time, x_run, ldt, ops)
+        trd_in = positional_encoding(plan.to_field(x_run), ldx)
+        trd_row = positional_encoding(time_rows(plan.query_time, x_run), ldt)
         out = _mlp(ops, trd, trd_in, w_trd, b_trd, trd_row, plan.bf16, True)
         named = dict(zip(trd.names, out, strict=False))
         trd_saved = out[len(trd.names) :]
@@ -219,10 +210,10 @@ class _FieldsStep(torch.autograd.Function):
             out = _mlp(ops, own[0], trd_in, w_own, b_own, trd_row, plan.bf16, True)
             named |= dict(zip(own[0].names, out, strict=False))
             own_saved = out[len(own[0].names) :]
-        zero = torch.zeros_like(named["velocity"])
-        v, w = named["velocity"], named["angular_velocity"]
-        a, e = named.get("acceleration", zero), named.get("angular_acceleration", zero)
-        v, a = _world(v, w, plan.frame), _world(a, e, plan.frame)  # (``integrate.params_in_world``)
+        params = DynamicsParams(*[named[name] for name in ORDER_TWO])  # (``applies``: second order)
+        if plan.frame is not None:
+            params = params_in_world(params, *plan.frame)
+        v, w, a, e = params[:4]
 
         # the RK2 from t' to t of the moving rows (``fused.fused_rk2_rows``, straight through)
         x_rows, q_rows = x_run, _rows(quats_s, rows).contiguous()
@@ -244,15 +235,16 @@ class _FieldsStep(torch.autograd.Function):
         if plan.t_check == plan.t:
             x_check = x_end
         else:
-            params = DynamicsParams(v, w, a, e)
-            x_check = integrate_states(x_run, None, params, s, plan.dt_max, "rk2")[0].contiguous()
-        check_in = ops.positional_encoding(_to_field(x_check, plan.frame).contiguous(), ldx, True)
-        check_row = _time_row(plan.t_check, x_check, ldt, ops)
+            x_check = integrate_states(x_run, None, params, s, plan.dt_max, "rk2")[0]
+        check_in = positional_encoding(plan.to_field(x_check), ldx)
+        check_row = positional_encoding(time_rows(plan.t_check, x_check), ldt)
         later = _mlp(ops, trd, check_in, w_trd, b_trd, check_row, plan.bf16, False)
         later = dict(zip(trd.names, later[: len(trd.names)], strict=True))
+        later = DynamicsParams(later["velocity"], later["angular_velocity"], None, None)
+        if plan.frame is not None:
+            later = params_in_world(later, *plan.frame)
         # ``fused.second_order_consistency``: the same operations in the same order
-        v_later = _world(later["velocity"], later["angular_velocity"], plan.frame)
-        gaps = [v + s * a - v_later, w + s * e - later["angular_velocity"]]
+        gaps = [v + s * a - later.velocity, w + s * e - later.angular_velocity]
         ctx.signs = [torch.sign(gap) for gap in gaps]
         gap = (gaps[0].abs().mean() + gaps[1].abs().mean()) / abs(s)
         return means_t, quats_t, scales_s, plan.consistency * gap
@@ -302,19 +294,6 @@ class _FieldsStep(torch.autograd.Function):
         grads_w = [*d_defo[0][:-1], *heads_w, *d_trd[0], *d_own[0]]
         grads_b = [*d_defo[1][:-1], *heads_b, *d_trd[1], *d_own[1]]
         return None, g_means, gq_canonical, g_scales, *grads_w, *grads_b
-
-
-def _to_field(x: torch.Tensor, frame) -> torch.Tensor:
-    """World positions as the fields see them (``TraceModel.to_field_frame``)."""
-    return x if frame is None else (x - frame[0]) / frame[1]
-
-
-def _world(linear: torch.Tensor, angular: torch.Tensor, frame) -> torch.Tensor:
-    """A field-frame velocity (or acceleration) in the world, with its rotational partner
-    (``integrate.params_in_world``'s ``world``, the same operations)."""
-    if frame is None:
-        return linear
-    return frame[1] * linear - torch.cross(angular, frame[0].to(angular).expand_as(angular), dim=-1)
 
 
 def _mlp(ops, chain: _Chain, x, weights, biases, time_row, bf16: bool, save: bool):
