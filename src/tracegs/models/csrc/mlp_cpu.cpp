@@ -413,19 +413,41 @@ void weight_partial(const T* d, int64_t m, const T* in, int64_t k, int64_t cr, T
 // Rows [0, cr) of a float matrix [., w] (row stride w, a multiple of 16) as bf16 pairs of consecutive
 // rows, [ceil(cr / 2), w] (each value rounded to the nearest even; an odd count's last pair with a
 // zero): an operand of the weight gradients' bf16 products, whose sums run over rows.
-inline void row_pairs(const float* src, int64_t cr, int64_t w, uint32_t* dst) {
+inline void store_pair(__m512 upper, __m512 lower, uint32_t* dst) {  // 16 pairs (upper's, lower's) as bf16
     alignas(64) static const uint16_t order[32] = {0, 16, 1, 17, 2,  18, 3,  19, 4,  20, 5,  21, 6,  22, 7,  23,
                                                    8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
-    const __m512i interleave = _mm512_load_si512(order);
+    const __m256bh a = _mm512_cvtneps_pbh(upper), b = _mm512_cvtneps_pbh(lower);
+    __m256i ai, bi;
+    std::memcpy(&ai, &a, sizeof(ai));
+    std::memcpy(&bi, &b, sizeof(bi));
+    const __m512i both = _mm512_inserti64x4(_mm512_castsi256_si512(ai), bi, 1);
+    _mm512_storeu_si512(dst, _mm512_permutexvar_epi16(_mm512_load_si512(order), both));
+}
+
+inline void row_pairs(const float* src, int64_t cr, int64_t w, uint32_t* dst) {
     for (int64_t r = 0; r < cr; r += 2) {
         for (int64_t c = 0; c < w; c += 16) {
-            const __m256bh a = _mm512_cvtneps_pbh(_mm512_loadu_ps(src + r * w + c));
-            const __m256bh b = _mm512_cvtneps_pbh(r + 1 < cr ? _mm512_loadu_ps(src + (r + 1) * w + c) : _mm512_setzero_ps());
-            __m256i ai, bi;
-            std::memcpy(&ai, &a, sizeof(ai));
-            std::memcpy(&bi, &b, sizeof(bi));
-            const __m512i both = _mm512_inserti64x4(_mm512_castsi256_si512(ai), bi, 1);
-            _mm512_storeu_si512(dst + r / 2 * w + c, _mm512_permutexvar_epi16(interleave, both));
+            store_pair(_mm512_loadu_ps(src + r * w + c),
+                       r + 1 < cr ? _mm512_loadu_ps(src + (r + 1) * w + c) : _mm512_setzero_ps(), dst + r / 2 * w + c);
+        }
+    }
+}
+
+// A SiLU layer's rows for the backward from its kept z [cr, w]: sigmoid(z) into ``sig`` (the input
+// gradient's derivative reads it) and h = z sigmoid(z) straight into row_pairs' bf16 pairs (the weight
+// gradient's operand; no float h stored and read back). The same values as the float path's.
+inline void silu_row_pairs(const float* z, int64_t cr, int64_t w, float* sig, uint32_t* dst) {
+    for (int64_t r = 0; r < cr; r += 2) {
+        for (int64_t c = 0; c < w; c += 16) {
+            const VT<float>::v za = loadv(z + r * w + c), sa = sigmoid<float>(za);
+            storev(sig + r * w + c, sa);
+            __m512 lower = _mm512_setzero_ps();
+            if (r + 1 < cr) {
+                const VT<float>::v zb = loadv(z + (r + 1) * w + c), sb = sigmoid<float>(zb);
+                storev(sig + (r + 1) * w + c, sb);
+                lower = __m512(zb * sb);
+            }
+            store_pair(__m512(za * sa), lower, dst + r / 2 * w + c);
         }
     }
 }
@@ -482,9 +504,22 @@ inline void weight_partial_bf16(const float* d, const uint32_t* d2, int64_t m, c
 }
 #endif
 
+// silu_row_pairs where the products are bf16 (float, an AVX512-BF16 build): whether it made the pairs.
+template <typename T>
+bool silu_pairs(const T* z, int64_t cr, int64_t w, T* sig, uint32_t* dst) {
+#if BF16_PRODUCTS
+    if constexpr (std::is_same_v<T, float>) {
+        silu_row_pairs(z, cr, w, sig, dst);
+        return true;
+    }
+#endif
+    return false;
+}
+
 // A chunk's partials of layer i's weight gradient (weight_partial's: D [cr, m] with In [cr, k], and its
 // bias') and, where ps is not null, of the skip weight's (D with the points' X [cr, ke]): from bf16
-// pairs of rows where ``pairs`` is not null (bf16 products; a thread's scratch, two halves of ``half``).
+// pairs of rows where ``pairs`` is not null (bf16 products; a thread's scratch, two halves of ``half``;
+// ``in`` null: In's pairs are in the second half already, silu_row_pairs').
 template <typename T>
 void layer_partials(const T* d, int64_t m, const T* in, int64_t k, const T* x, int64_t ke, int64_t cr, T* pw,
                     int64_t m_out, T* ps, int64_t s_out, uint32_t* pairs, int64_t half) {
@@ -493,7 +528,9 @@ void layer_partials(const T* d, int64_t m, const T* in, int64_t k, const T* x, i
         if (pairs != nullptr) {  // (rounded as the other products' operands)
             uint32_t* in2 = pairs + half;
             row_pairs(d, cr, m, pairs);
-            row_pairs(in, cr, k, in2);
+            if (in != nullptr) {
+                row_pairs(in, cr, k, in2);
+            }
             weight_partial_bf16(d, pairs, m, in2, k, cr, pw, pw + m * k, m_out);
             if (ps != nullptr) {
                 row_pairs(x, cr, ke, in2);
@@ -996,7 +1033,8 @@ std::vector<at::Tensor> mlp_forward(
                 for (int64_t i = 0, turn = 0; i < layers; ++i, turn ^= 1) {
                     const int64_t m = packed[i].b.size(1);
                     scalar_t* keep = kept[i].defined() ? kept[i].data_ptr<scalar_t>() + r0 * m : nullptr;
-                    scalar_t* h = i < last ? scratch.get() + turn * slot
+                    // (a hidden layer's h in float only where the next product reads floats)
+                    scalar_t* h = i < last ? (bf16 ? nullptr : scratch.get() + turn * slot)
                                            : (out_h.defined() ? out_h.data_ptr<scalar_t>() + r0 * m : nullptr);
                     uint16_t* h16 = bf16 && i < last ? scratch16.get() + turn * slot : nullptr;
                     cur.b = &packed[i];
@@ -1147,7 +1185,9 @@ std::vector<at::Tensor> mlp_backward(
                     // h_{i-1} (padded): x, kept (ReLU), or z sigmoid(z) from the kept z (SiLU), as the forward
                     const scalar_t* in = saved[i].data_ptr<scalar_t>() + r0 * k;
                     scalar_t* sig = recomputed.get();
-                    if (i > 0 && activation == SILU) {
+                    if (i > 0 && activation == SILU && bf16 && silu_pairs<scalar_t>(in, cr, k, sig, pairs.get() + slot / 2)) {
+                        in = nullptr;  // (its pairs made)
+                    } else if (i > 0 && activation == SILU) {
                         scalar_t* h = recomputed.get() + slot;
                         for (int64_t e = 0; e < cr * k; e += LANES<scalar_t>) {
                             const typename VT<scalar_t>::v z = loadv(in + e), sz = sigmoid<scalar_t>(z);
