@@ -433,6 +433,22 @@ inline void row_pairs(const float* src, int64_t cr, int64_t w, uint32_t* dst) {
     }
 }
 
+// row_pairs of rows already bf16 (row stride w, a multiple of 16): the bf16 mode's saved x.
+inline void row_pairs16(const uint16_t* src, int64_t cr, int64_t w, uint32_t* dst) {
+    alignas(64) static const uint16_t order[32] = {0, 16, 1, 17, 2,  18, 3,  19, 4,  20, 5,  21, 6,  22, 7,  23,
+                                                   8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
+    const __m512i interleave = _mm512_load_si512(order);
+    for (int64_t r = 0; r < cr; r += 2) {
+        for (int64_t c = 0; c < w; c += 16) {
+            const __m256i a = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(src + r * w + c));
+            const __m256i b = r + 1 < cr ? _mm256_loadu_si256(reinterpret_cast<const __m256i*>(src + (r + 1) * w + c))
+                                         : _mm256_setzero_si256();
+            const __m512i both = _mm512_inserti64x4(_mm512_castsi256_si512(a), b, 1);
+            _mm512_storeu_si512(dst + r / 2 * w + c, _mm512_permutexvar_epi16(interleave, both));
+        }
+    }
+}
+
 // A SiLU layer's rows for the backward from its kept z [cr, w]: sigmoid(z) into ``sig`` (the input
 // gradient's derivative reads it) and h = z sigmoid(z) straight into row_pairs' bf16 pairs (the weight
 // gradient's operand; no float h stored and read back). The same values as the float path's.
@@ -519,21 +535,25 @@ bool silu_pairs(const T* z, int64_t cr, int64_t w, T* sig, uint32_t* dst) {
 // A chunk's partials of layer i's weight gradient (weight_partial's: D [cr, m] with In [cr, k], and its
 // bias') and, where ps is not null, of the skip weight's (D with the points' X [cr, ke]): from bf16
 // pairs of rows where ``pairs`` is not null (bf16 products; a thread's scratch, two halves of ``half``;
-// ``in`` null: In's pairs are in the second half already, silu_row_pairs').
+// ``in`` null: In's pairs are in the second half already, silu_row_pairs'; with bf16 products the
+// points' X comes as bf16 rows, x16: the saved x of a bf16 call, which is In where ``in_is_x``).
 template <typename T>
 void layer_partials(const T* d, int64_t m, const T* in, int64_t k, const T* x, int64_t ke, int64_t cr, T* pw,
-                    int64_t m_out, T* ps, int64_t s_out, uint32_t* pairs, int64_t half) {
+                    int64_t m_out, T* ps, int64_t s_out, uint32_t* pairs, int64_t half, const uint16_t* x16,
+                    bool in_is_x) {
 #if BF16_PRODUCTS
     if constexpr (std::is_same_v<T, float>) {
         if (pairs != nullptr) {  // (rounded as the other products' operands)
             uint32_t* in2 = pairs + half;
             row_pairs(d, cr, m, pairs);
-            if (in != nullptr) {
+            if (in_is_x) {
+                row_pairs16(x16, cr, k, in2);
+            } else if (in != nullptr) {
                 row_pairs(in, cr, k, in2);
             }
             weight_partial_bf16(d, pairs, m, in2, k, cr, pw, pw + m * k, m_out);
             if (ps != nullptr) {
-                row_pairs(x, cr, ke, in2);
+                row_pairs16(x16, cr, ke, in2);
                 weight_partial_bf16(d, pairs, m, in2, ke, cr, ps, nullptr, s_out);
             }
             return;
@@ -973,16 +993,20 @@ std::vector<at::Tensor> mlp_forward(
                 biases[skip_layer] = fold_time<scalar_t>(biases[skip_layer], whole[skip_layer], parts);
             }
         }
-        // x [N padded to PAD rows, E padded], each chunk's rows packed (and copied as bf16) by its thread
+        // x [N padded to PAD rows, E padded], each chunk's rows packed by its thread: as bf16 only with
+        // bf16 products (their operand, and the backward's; a float copy was a pass over memory for nothing)
         const at::Tensor xt = as_type(x, c10::CppTypeToScalarType<scalar_t>::value);
         const int64_t rows = padded(n), ke = padded(x.size(1)), last = layers - 1;
-        const at::Tensor input = at::empty({rows, ke}, x.options().dtype(xt.scalar_type()));
-        std::fill(input.data_ptr<scalar_t>() + n * ke, input.data_ptr<scalar_t>() + rows * ke, scalar_t(0));
-        saved.push_back(input);
-        at::Tensor input_bf16;
+        const auto options = x.options().dtype(xt.scalar_type());
+        at::Tensor input, input_bf16;
         if (bf16) {
             input_bf16 = at::empty({rows, ke}, x.options().dtype(at::kBFloat16));
             std::fill(bf16_data(input_bf16) + n * ke, bf16_data(input_bf16) + rows * ke, uint16_t(0));
+            saved.push_back(input_bf16);
+        } else {
+            input = at::empty({rows, ke}, options);
+            std::fill(input.data_ptr<scalar_t>() + n * ke, input.data_ptr<scalar_t>() + rows * ke, scalar_t(0));
+            saved.push_back(input);
         }
         // the layers' operands, packed once; what the backward reads (``kept``): z for SiLU and the linear
         // last layer, h for ReLU; without a gradient to come only the last layer's
@@ -999,7 +1023,7 @@ std::vector<at::Tensor> mlp_forward(
             const int64_t m = padded(weights[i].size(0));
             widest = std::max(widest, m);
             if (save || i == last) {
-                kept[i] = at::empty({rows, m}, input.options());
+                kept[i] = at::empty({rows, m}, options);
                 std::fill(kept[i].data_ptr<scalar_t>() + n * m, kept[i].data_ptr<scalar_t>() + rows * m, scalar_t(0));
             }
         }
@@ -1007,11 +1031,11 @@ std::vector<at::Tensor> mlp_forward(
         const int64_t m_last = kept[last].size(1);
         at::Tensor out_h;  // a SiLU last layer's output (its z is kept)
         if (acts[last] == SILU) {
-            out_h = at::zeros({rows, m_last}, input.options());
+            out_h = at::zeros({rows, m_last}, options);
         }
         std::vector<at::Tensor> outs(groups.size());
         for (size_t g = 0; g < groups.size(); ++g) {
-            outs[g] = at::empty({n, groups[g]}, input.options());
+            outs[g] = at::empty({n, groups[g]}, options);
         }
         // Chunks of CHUNK_ROWS points, each carried through every layer by one thread: a layer's h in the
         // thread's own buffers for the next (cached, not a pass over all the points a layer), and the
@@ -1021,13 +1045,16 @@ std::vector<at::Tensor> mlp_forward(
             const int64_t slot = CHUNK_ROWS * widest;
             std::unique_ptr<scalar_t[]> scratch(new scalar_t[2 * slot]);
             std::unique_ptr<uint16_t[]> scratch16(bf16 ? new uint16_t[2 * slot] : nullptr);
+            std::unique_ptr<scalar_t[]> rows_f(bf16 ? new scalar_t[CHUNK_ROWS * ke] : nullptr);  // (x's, packed)
             for (int64_t c = c0; c < c1; ++c) {
                 const int64_t r0 = c * CHUNK_ROWS, cr = std::min(n, r0 + CHUNK_ROWS) - r0;
-                pack_rows<scalar_t>(xt, r0, r0 + cr, input.data_ptr<scalar_t>(), ke);
-                if (bf16) {
-                    copy_bf16(input.data_ptr<float>() + r0 * ke, cr * ke, bf16_data(input_bf16) + r0 * ke);
+                if (bf16) {  // (through the thread's float rows: the same rounding as the products' other operands)
+                    pack_rows<scalar_t>(xt, r0, r0 + cr, rows_f.get() - r0 * ke, ke);
+                    copy_bf16(reinterpret_cast<const float*>(rows_f.get()), cr * ke, bf16_data(input_bf16) + r0 * ke);
+                } else {
+                    pack_rows<scalar_t>(xt, r0, r0 + cr, input.data_ptr<scalar_t>(), ke);
                 }
-                const Operand<scalar_t> x_rows{nullptr, input.data_ptr<scalar_t>() + r0 * ke,
+                const Operand<scalar_t> x_rows{nullptr, bf16 ? nullptr : input.data_ptr<scalar_t>() + r0 * ke,
                                                bf16 ? bf16_data(input_bf16) + r0 * ke : nullptr, ke};
                 Operand<scalar_t> cur = x_rows;
                 for (int64_t i = 0, turn = 0; i < layers; ++i, turn ^= 1) {
@@ -1082,22 +1109,23 @@ std::vector<at::Tensor> mlp_backward(
     const int64_t layers = int64_t(weights.size());
     TORCH_CHECK(int64_t(saved.size()) == 1 + layers, "mlp_backward: saved tensors do not match");
     TORCH_CHECK(!grads_out.empty(), "mlp_backward: no output gradients");
-    const at::Tensor& input = saved[0];
-    TORCH_CHECK(!bf16 || (BF16_PRODUCTS && input.scalar_type() == at::kFloat),
-                "mlp_backward: bf16 products need float32 inputs and an AVX512-BF16 build");
+    const at::Tensor& input = saved[0];  // (x padded: bf16 with bf16 products, mlp_forward's)
+    TORCH_CHECK(!bf16 || (BF16_PRODUCTS && input.scalar_type() == at::kBFloat16 && saved[1].scalar_type() == at::kFloat),
+                "mlp_backward: bf16 products need a bf16 call's saved tensors and an AVX512-BF16 build");
     const Parts parts = make_parts(time_row, encoded - (time_row.has_value() ? time_row->size(1) : 0), encoded);
     const std::vector<at::Tensor> whole = weights;
     take_parts(parts, weights, skip_weight, skip_layer);
-    const auto type = input.scalar_type();
+    const auto type = saved[1].scalar_type();
+    const auto options = saved[1].options();
     const int64_t n = grads_out[0].size(0), rows = input.size(0);
-    std::vector<at::Tensor> grads(2 * layers + 2, at::empty({0}, input.options()));
+    std::vector<at::Tensor> grads(2 * layers + 2, at::empty({0}, options));
     at::Tensor dx;
     AT_DISPATCH_FLOATING_TYPES(type, "mlp_backward", [&] {
         // dz of the last layer: the incoming gradients, padded (the scaled outputs' times 2 |r| / scale),
         // times its activation's derivative
         const int64_t last = layers - 1;
         const int64_t m_last = saved[1 + last].size(1);
-        at::Tensor dz = at::empty({rows, m_last}, input.options());
+        at::Tensor dz = at::empty({rows, m_last}, options);
         {
             scalar_t* p = dz.data_ptr<scalar_t>();
             const scalar_t* raw = saved[1 + last].data_ptr<scalar_t>();
@@ -1156,7 +1184,7 @@ std::vector<at::Tensor> mlp_backward(
         }
         PackedB packed_x, packed_skip;
         if (wants_x) {
-            dx = at::zeros({rows, ke}, input.options());
+            dx = at::zeros({rows, ke}, options);
             packed_x = pack_b<scalar_t>(weights[0], false, last == 0 ? stop_from : -1, bf16);
             if (skip_layer >= 0) {
                 packed_skip = pack_b<scalar_t>(*skip_weight, false, skip_layer == last ? stop_from : -1, bf16);
@@ -1183,7 +1211,10 @@ std::vector<at::Tensor> mlp_backward(
                 for (int64_t i = last, turn = 0; i >= 0; --i, turn ^= 1) {
                     const int64_t m = ms[i], k = ks[i];
                     // h_{i-1} (padded): x, kept (ReLU), or z sigmoid(z) from the kept z (SiLU), as the forward
-                    const scalar_t* in = saved[i].data_ptr<scalar_t>() + r0 * k;
+                    // (x as bf16 rows with bf16 products: x16)
+                    const scalar_t* in = bf16 && i == 0 ? nullptr : saved[i].data_ptr<scalar_t>() + r0 * k;
+                    const scalar_t* x = bf16 ? nullptr : input.data_ptr<scalar_t>() + r0 * ke;
+                    const uint16_t* x16 = bf16 ? bf16_data(input) + r0 * ke : nullptr;
                     scalar_t* sig = recomputed.get();
                     if (i > 0 && activation == SILU && bf16 && silu_pairs<scalar_t>(in, cr, k, sig, pairs.get() + slot / 2)) {
                         in = nullptr;  // (its pairs made)
@@ -1199,9 +1230,9 @@ std::vector<at::Tensor> mlp_backward(
                     scalar_t* pw = partial.get() + offsets[i] + c * (m * k + m);
                     // (the skip weight's: the same dz with x; its bias is the layer's)
                     scalar_t* ps = i == skip_layer ? partial.get() + offsets[layers] + c * (m * ke + m) : nullptr;
-                    layer_partials<scalar_t>(cur, m, in, k, input.data_ptr<scalar_t>() + r0 * ke, ke, cr, pw,
+                    layer_partials<scalar_t>(cur, m, in, k, x, ke, cr, pw,
                                              weights[i].size(0), ps, ps ? skip_weight->size(0) : 0, pairs.get(),
-                                             slot / 2);
+                                             slot / 2, x16, bf16 && i == 0);
                     // d x += dz_i W_i (the first layer) and dz_i S (the skip layer; both where that is the first)
                     for (int64_t part = 0; wants_x && part < 2; ++part) {
                         if (part == 0 ? i != 0 : i != skip_layer) {
@@ -1231,13 +1262,13 @@ std::vector<at::Tensor> mlp_backward(
         });
         for (int64_t i = last; i >= 0; --i) {
             const int64_t o_real = weights[i].size(0), k_real = weights[i].size(1);
-            at::Tensor dw = at::empty({o_real, k_real}, input.options());
-            at::Tensor db = at::empty({o_real}, input.options());
+            at::Tensor dw = at::empty({o_real, k_real}, options);
+            at::Tensor db = at::empty({o_real}, options);
             reduce_partials<scalar_t>(partial.get() + offsets[i], chunks, ms[i], ks[i], dw.data_ptr<scalar_t>(),
                                       db.data_ptr<scalar_t>(), o_real, k_real);
             at::Tensor ds;
             if (i == skip_layer) {
-                ds = at::empty({skip_weight->size(0), skip_weight->size(1)}, input.options());
+                ds = at::empty({skip_weight->size(0), skip_weight->size(1)}, options);
                 reduce_partials<scalar_t>(partial.get() + offsets[layers], chunks, ms[i], ke, ds.data_ptr<scalar_t>(),
                                           nullptr, ds.size(0), ds.size(1));
             }
