@@ -410,20 +410,26 @@ void weight_partial(const T* d, int64_t m, const T* in, int64_t k, int64_t cr, T
 }
 
 #if BF16_PRODUCTS
-// Rows [0, cr) of a float matrix [., w] (row stride w, a multiple of 16) as bf16 pairs of consecutive
-// rows, [ceil(cr / 2), w] (each value rounded to the nearest even; an odd count's last pair with a
-// zero): an operand of the weight gradients' bf16 products, whose sums run over rows.
-inline void store_pair(__m512 upper, __m512 lower, uint32_t* dst) {  // 16 pairs (upper's, lower's) as bf16
+// 16 bf16 values of one row (upper) and of the next (lower) stored as 16 pairs, (upper's, lower's).
+inline void store_pair16(__m256i upper, __m256i lower, uint32_t* dst) {
     alignas(64) static const uint16_t order[32] = {0, 16, 1, 17, 2,  18, 3,  19, 4,  20, 5,  21, 6,  22, 7,  23,
                                                    8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
+    const __m512i both = _mm512_inserti64x4(_mm512_castsi256_si512(upper), lower, 1);
+    _mm512_storeu_si512(dst, _mm512_permutexvar_epi16(_mm512_load_si512(order), both));
+}
+
+// store_pair16 of 16 floats of each row, rounded to the nearest even bf16.
+inline void store_pair(__m512 upper, __m512 lower, uint32_t* dst) {
     const __m256bh a = _mm512_cvtneps_pbh(upper), b = _mm512_cvtneps_pbh(lower);
     __m256i ai, bi;
     std::memcpy(&ai, &a, sizeof(ai));
     std::memcpy(&bi, &b, sizeof(bi));
-    const __m512i both = _mm512_inserti64x4(_mm512_castsi256_si512(ai), bi, 1);
-    _mm512_storeu_si512(dst, _mm512_permutexvar_epi16(_mm512_load_si512(order), both));
+    store_pair16(ai, bi, dst);
 }
 
+// Rows [0, cr) of a float matrix [., w] (row stride w, a multiple of 16) as bf16 pairs of consecutive
+// rows, [ceil(cr / 2), w] (each value rounded to the nearest even; an odd count's last pair with a
+// zero): an operand of the weight gradients' bf16 products, whose sums run over rows.
 inline void row_pairs(const float* src, int64_t cr, int64_t w, uint32_t* dst) {
     for (int64_t r = 0; r < cr; r += 2) {
         for (int64_t c = 0; c < w; c += 16) {
@@ -435,16 +441,12 @@ inline void row_pairs(const float* src, int64_t cr, int64_t w, uint32_t* dst) {
 
 // row_pairs of rows already bf16 (row stride w, a multiple of 16): the bf16 mode's saved x.
 inline void row_pairs16(const uint16_t* src, int64_t cr, int64_t w, uint32_t* dst) {
-    alignas(64) static const uint16_t order[32] = {0, 16, 1, 17, 2,  18, 3,  19, 4,  20, 5,  21, 6,  22, 7,  23,
-                                                   8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
-    const __m512i interleave = _mm512_load_si512(order);
     for (int64_t r = 0; r < cr; r += 2) {
         for (int64_t c = 0; c < w; c += 16) {
             const __m256i a = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(src + r * w + c));
             const __m256i b = r + 1 < cr ? _mm256_loadu_si256(reinterpret_cast<const __m256i*>(src + (r + 1) * w + c))
                                          : _mm256_setzero_si256();
-            const __m512i both = _mm512_inserti64x4(_mm512_castsi256_si512(a), b, 1);
-            _mm512_storeu_si512(dst + r / 2 * w + c, _mm512_permutexvar_epi16(interleave, both));
+            store_pair16(a, b, dst + r / 2 * w + c);
         }
     }
 }
@@ -946,11 +948,11 @@ Parts make_parts(const c10::optional<at::Tensor>& time_row, int64_t ex, int64_t 
     return parts;
 }
 
-// [the outputs (one per group), then with ``save`` (a gradient to come) x padded and per layer what
-// the backward reads, padded: z for SiLU (h is recomputed from it) and for the linear last layer, h for
-// ReLU]. The last layer's outputs in ``groups`` of consecutive
-// columns (each its own tensor, contiguous), those from ``scaled_from`` on (>= 0) as r |r| / scale
-// (f_trd's rates, dynamics.py's scale_acceleration).
+// [the outputs (one per group), then with ``save`` (a gradient to come) x padded (bf16 with ``bf16``)
+// and per layer what the backward reads, padded: z for SiLU (h is recomputed from it) and for the
+// linear last layer, h for ReLU]. The last layer's outputs in ``groups`` of consecutive columns (each
+// its own tensor, contiguous), those from ``scaled_from`` on (>= 0) as r |r| / scale (f_trd's rates,
+// dynamics.py's scale_acceleration).
 std::vector<at::Tensor> mlp_forward(
     const at::Tensor& x,
     std::vector<at::Tensor> weights,
