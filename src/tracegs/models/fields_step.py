@@ -243,10 +243,8 @@ class _FieldsStep(torch.autograd.Function):
         later = DynamicsParams(later["velocity"], later["angular_velocity"], None, None)
         if plan.frame is not None:
             later = params_in_world(later, *plan.frame)
-        # ``fused.second_order_consistency``: the same operations in the same order
-        gaps = [v + s * a - later.velocity, w + s * e - later.angular_velocity]
-        ctx.signs = [torch.sign(gap) for gap in gaps]
-        gap = (gaps[0].abs().mean() + gaps[1].abs().mean()) / abs(s)
+        # ``fused.second_order_consistency``'s operations
+        gap, ctx.signs = fused.consistency_gap(a, e, v, w, later.velocity, later.angular_velocity, s)
         return means_t, quats_t, scales_s, plan.consistency * gap
 
     @staticmethod
@@ -264,10 +262,10 @@ class _FieldsStep(torch.autograd.Function):
             *g_rows, x_rows, q_rows, *motion, plan.dt, plan.steps, True
         )
         if ctx.signs is not None and g_loss is not None:
-            s = plan.t_check - plan.t_prime
-            per = g_loss * plan.consistency / abs(s) / ctx.signs[0].numel()
-            ga = ga + ctx.signs[0] * per * s
-            ge = ge + ctx.signs[1] * per * s
+            da, de = fused.consistency_grads(
+                ctx.signs, g_loss * plan.consistency, plan.t_check - plan.t_prime
+            )
+            ga, ge = ga + da, ge + de
         if plan.frame is not None:  # ``params_in_world``'s backward, as autograd's: scale, then the cross
             centre, scale = plan.frame
             centre = centre.to(gw).expand_as(gw)

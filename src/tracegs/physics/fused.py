@@ -143,16 +143,27 @@ class _SecondOrderConsistency(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, a, e, v, w, v_later, w_later, s: float):
-        gaps = [v + s * a - v_later, w + s * e - w_later]
-        ctx.save_for_backward(*[torch.sign(g) for g in gaps])
+        gap, signs = consistency_gap(a, e, v, w, v_later, w_later, s)
+        ctx.save_for_backward(*signs)
         ctx.s = s
-        return (gaps[0].abs().mean() + gaps[1].abs().mean()) / abs(ctx.s)
+        return gap
 
     @staticmethod
     def backward(ctx, grad):
-        sign_v, sign_w = ctx.saved_tensors
-        per = grad / abs(ctx.s) / sign_v.numel()
-        return sign_v * per * ctx.s, sign_w * per * ctx.s, None, None, None, None, None
+        return *consistency_grads(ctx.saved_tensors, grad, ctx.s), None, None, None, None, None
+
+
+def consistency_gap(a, e, v, w, v_later, w_later, s: float) -> tuple[torch.Tensor, list[torch.Tensor]]:
+    """The second-order consistency's gap and the signs its gradient reads, autograd's operations in
+    autograd's order (``_SecondOrderConsistency``; ``models/fields_step.py``)."""
+    gaps = [v + s * a - v_later, w + s * e - w_later]
+    return (gaps[0].abs().mean() + gaps[1].abs().mean()) / abs(s), [torch.sign(g) for g in gaps]
+
+
+def consistency_grads(signs, grad: torch.Tensor, s: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The gap's gradient ``grad`` as the accelerations' ``(d a, d e)``, from ``consistency_gap``'s signs."""
+    per = grad / abs(s) / signs[0].numel()
+    return signs[0] * per * s, signs[1] * per * s
 
 
 def second_order_consistency(a, e, v, w, v_later, w_later, s: float) -> torch.Tensor:
