@@ -361,16 +361,26 @@ __attribute__((noinline)) void product_tiles(const std::vector<P>& pairs, const 
 }
 
 // One chunk's share of db = the column sums of D (rows [0, cr) of D [., m]); nothing where pb is null.
+// Up to SB vectors of a row at a time, each its own sum over the rows in order (one sum a column
+// was a chain of dependent adds down a strided column).
 template <typename T>
 void bias_partial(const T* d, int64_t m, int64_t cr, T* pb) {
     using V = typename VT<T>::v;
     constexpr int64_t L = LANES<T>;
-    for (int64_t v = 0; pb != nullptr && v < m / L; ++v) {
-        V s{};
+    constexpr int SB = 8;
+    for (int64_t v0 = 0; pb != nullptr && v0 < m / L; v0 += SB) {
+        const int nv = int(std::min<int64_t>(SB, m / L - v0));
+        V s[SB] = {};
         for (int64_t r = 0; r < cr; ++r) {
-            s += loadv(d + r * m + v * L);
+            for (int j = 0; j < SB; ++j) {
+                if (j < nv) {
+                    s[j] += loadv(d + r * m + (v0 + j) * L);
+                }
+            }
         }
-        storev(pb + v * L, s);
+        for (int j = 0; j < nv; ++j) {
+            storev(pb + (v0 + j) * L, s[j]);
+        }
     }
 }
 
@@ -596,6 +606,29 @@ inline at::Tensor as_type(const at::Tensor& t, at::ScalarType type) {
     return t.scalar_type() == type ? t : t.to(type);
 }
 
+// Columns [c, c + lanes) of a row of n floats, those from n on zero: a masked load with AVX (nothing
+// past the row read), else lane by lane. (A row's std::copy of ~40 floats and its padding's fill were
+// two library calls a row: ~10% of a forward at the fields' sizes.)
+inline VT<float>::v load_part(const float* row, int64_t c, int64_t n) {
+    VT<float>::v v;
+#if defined(__AVX512F__)
+    const int64_t left = n - c;
+    const __mmask16 keep = left >= 16 ? __mmask16(0xFFFF) : left > 0 ? __mmask16((1u << left) - 1) : __mmask16(0);
+    const __m512 x = _mm512_maskz_loadu_ps(keep, row + c);
+    std::memcpy(&v, &x, sizeof(v));
+#elif defined(__AVX__)
+    const __m256i lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    const __m256i keep = _mm256_cmpgt_epi32(_mm256_set1_epi32(int(std::min<int64_t>(n - c, 8))), lanes);
+    const __m256 x = _mm256_maskload_ps(row + c, keep);
+    std::memcpy(&v, &x, sizeof(v));
+#else
+    for (int64_t l = 0; l < LANES<float>; ++l) {
+        v[l] = c + l < n ? row[c + l] : 0.0f;
+    }
+#endif
+    return v;
+}
+
 // Rows [r0, r1) of a matrix w [rows, cols] (of type T, any strides) copied into o (row stride pc >=
 // cols, from its row r0), each row's padding zeroed: ``pack``'s loop, and the forward's input packed
 // a chunk at a time by the thread that takes it.
@@ -604,7 +637,15 @@ void pack_rows(const at::Tensor& w, int64_t r0, int64_t r1, T* o, int64_t pc) {
     const int64_t cols = w.size(1), rs = w.stride(0), cs = w.stride(1);
     const T* src = w.data_ptr<T>();
     for (int64_t r = r0; r < r1; ++r) {
-        if (cs == 1) {  // (a row in one copy: the fields' inputs, [N, E])
+        if constexpr (std::is_same_v<T, float>) {
+            if (cs == 1) {  // (a row a vector at a time: the fields' inputs, [N, E])
+                for (int64_t c = 0; c < pc; c += LANES<float>) {
+                    storev(o + r * pc + c, load_part(src + r * rs, c, cols));
+                }
+                continue;
+            }
+        }
+        if (cs == 1) {  // (a row in one copy)
             std::copy(src + r * rs, src + r * rs + cols, o + r * pc);
         } else {
             for (int64_t c = 0; c < cols; ++c) {
@@ -735,10 +776,23 @@ struct BackwardStore {  // dz_{i-1} = (dz_i W_i) act'(z_{i-1}), from z and its s
     }
 };
 
-// count floats (a multiple of a vector's lanes: padded rows) copied as bf16 (the operand A of bf16 products).
-inline void copy_bf16(const float* src, int64_t count, uint16_t* dst) {
-    for (int64_t e = 0; e < count; e += LANES<float>) {
-        store_copy<float>(dst, e, loadv(src + e));
+// Rows [r0, r1) of x [N, E] float32 (any strides) as bf16 rows of ke columns (the padding zero), each
+// value rounded to the nearest even, into dst from its row r0: the operand A of bf16 products.
+inline void pack_rows_bf16(const at::Tensor& x, int64_t r0, int64_t r1, uint16_t* dst, int64_t ke) {
+    const int64_t cols = x.size(1), rs = x.stride(0), cs = x.stride(1);
+    const float* src = x.data_ptr<float>();
+    std::vector<float> row(cs == 1 ? 0 : cols);  // (a strided row gathered first)
+    for (int64_t r = r0; r < r1; ++r) {
+        const float* at = src + r * rs;
+        if (cs != 1) {
+            for (int64_t c = 0; c < cols; ++c) {
+                row[c] = at[c * cs];
+            }
+            at = row.data();
+        }
+        for (int64_t c = 0; c < ke; c += LANES<float>) {
+            store_copy<float>(dst + r * ke, c, load_part(at, c, cols));
+        }
     }
 }
 
@@ -1047,12 +1101,10 @@ std::vector<at::Tensor> mlp_forward(
             const int64_t slot = CHUNK_ROWS * widest;
             std::unique_ptr<scalar_t[]> scratch(new scalar_t[2 * slot]);
             std::unique_ptr<uint16_t[]> scratch16(bf16 ? new uint16_t[2 * slot] : nullptr);
-            std::unique_ptr<scalar_t[]> rows_f(bf16 ? new scalar_t[CHUNK_ROWS * ke] : nullptr);  // (x's, packed)
             for (int64_t c = c0; c < c1; ++c) {
                 const int64_t r0 = c * CHUNK_ROWS, cr = std::min(n, r0 + CHUNK_ROWS) - r0;
-                if (bf16) {  // (through the thread's float rows: the same rounding as the products' other operands)
-                    pack_rows<scalar_t>(xt, r0, r0 + cr, rows_f.get() - r0 * ke, ke);
-                    copy_bf16(reinterpret_cast<const float*>(rows_f.get()), cr * ke, bf16_data(input_bf16) + r0 * ke);
+                if (bf16) {  // (rounded as the products' other operands)
+                    pack_rows_bf16(xt, r0, r0 + cr, bf16_data(input_bf16), ke);
                 } else {
                     pack_rows<scalar_t>(xt, r0, r0 + cr, input.data_ptr<scalar_t>(), ke);
                 }
