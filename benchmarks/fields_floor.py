@@ -269,7 +269,7 @@ def measure(model, threads: int, blocks: int = 6, steps: int = 20) -> list[dict]
     ]
 
 
-def measure_run(run: Path, fields: list[str]) -> list[dict]:
+def measure_run(run: Path, fields: list[str], blocks: int = 6) -> list[dict]:
     """The rows of every dtype of ``fields`` and 1 and 2 threads for the run's model."""
     model = load_run(run, "cpu").model
     as_loaded = model.bf16
@@ -279,7 +279,7 @@ def measure_run(run: Path, fields: list[str]) -> list[dict]:
     rows = []
     for dtype in fields:
         model.bf16 = as_loaded if dtype == "run" else dtype == "bf16"
-        rows += [row for threads in (1, 2) for row in measure(model, threads)]
+        rows += [row for threads in (1, 2) for row in measure(model, threads, blocks)]
     return rows
 
 
@@ -295,17 +295,22 @@ def main() -> None:
         "--isa", choices=tuple(ISA_ENVIRONMENTS), nargs="+", default=["native"],
         help="instruction sets (rows for each): this CPU's, or AVX2 only (as an AVX2 laptop runs; float32)",
     )  # fmt: skip
+    ap.add_argument(
+        "--blocks", type=int, default=6,
+        help="blocks of 20 steps per kernel (each row its fastest block): more on a host whose speed drifts",
+    )  # fmt: skip
     ap.add_argument("--rows-only", action="store_true", help=argparse.SUPPRESS)  # (a child's JSON rows)
     args = ap.parse_args()
     kept = keep_freed_memory()
     if args.rows_only:
-        print(json.dumps(measure_run(args.run, args.fields)))
+        print(json.dumps(measure_run(args.run, args.fields, args.blocks)))
         return
     rows = []
     for isa in args.isa:
         # an AVX2-only CPU runs the fields in float32 (bf16 without hardware dot products is ~100x slower)
         fields = ["fp32"] if isa == "avx2" else args.fields
         command = [sys.executable, __file__, "--run", str(args.run), "--fields", *fields, "--rows-only"]
+        command += ["--blocks", str(args.blocks)]
         rows += [{"isa": isa, **row} for row in json_of_process_held_to(isa, command)]
     for row in rows:
         print(row)
@@ -314,7 +319,7 @@ def main() -> None:
             "fields-floor",
             rows,
             f"tracegs demo; python benchmarks/fields_floor.py --run {args.run} --fields {' '.join(args.fields)} "
-            f"--isa {' '.join(args.isa)} --json {args.json}",
+            f"--isa {' '.join(args.isa)} --blocks {args.blocks} --json {args.json}",
             title="The fields of one stage-2 step against their FLOP floor",
             notes=(
                 "One step's fields (f_defo at t', f_trd, RK2, the acceleration consistency) forward and "
@@ -323,7 +328,7 @@ def main() -> None:
                 "product in the same dtype and threads; ratio = measured / floor; gemms_alone: the step's "
                 "own matrix products (shapes, strides, dtypes) replayed alone; mlps_alone: the step's fused "
                 "MLP calls (forward and backward, their inputs and settings) replayed alone, the fields "
-                "without the glue between them. measured: the fastest of six "
+                f"without the glue between them. measured: the fastest of {args.blocks} "
                 "blocks of 20 steps, the kernels in alternate blocks (native ops: the RK2, the positional "
                 "encoding, f_defo's output applied to the Gaussians; fused MLP: float32, and bf16 with "
                 "AVX512-BF16 without AMX; one node: all of them as the step's one autograd node, "
