@@ -714,6 +714,21 @@ constexpr bool DEFER_SILU = true;
 constexpr bool DEFER_SILU = false;
 #endif
 
+// A kept vector (read by the backward, after the other calls): a streaming store with AVX-512 (no read
+// of the line first; kept + at is 64-byte aligned), else storev.
+template <typename T>
+inline void store_kept(T* p, typename VT<T>::v v) {
+#if defined(__AVX512F__)
+    if constexpr (std::is_same_v<T, float>) {
+        __m512 f;
+        std::memcpy(&f, &v, sizeof(f));
+        _mm512_stream_ps(p, f);
+        return;
+    }
+#endif
+    storev(p, v);
+}
+
 template <typename T, int64_t ACT>
 struct ForwardStore {
     static constexpr bool defers = DEFER_SILU && ACT == SILU && std::is_same_v<T, float>;
@@ -736,7 +751,7 @@ struct ForwardStore {
                 a = v > T(0) ? v : T(0);
             }
             if (kept != nullptr) {
-                storev(kept + at, ACT == SILU ? v : a);
+                store_kept<T>(kept + at, ACT == SILU ? v : a);
             }
             if (h != nullptr) {
                 storev(h + at, a);
@@ -1080,6 +1095,8 @@ std::vector<at::Tensor> mlp_forward(
             widest = std::max(widest, m);
             if (save || i == last) {
                 kept[i] = at::empty({rows, m}, options);
+                TORCH_CHECK(reinterpret_cast<uintptr_t>(kept[i].data_ptr()) % 64 == 0,
+                            "mlp_forward: a kept tensor is not 64-byte aligned (store_kept)");
                 std::fill(kept[i].data_ptr<scalar_t>() + n * m, kept[i].data_ptr<scalar_t>() + rows * m, scalar_t(0));
             }
         }
@@ -1133,6 +1150,9 @@ std::vector<at::Tensor> mlp_forward(
                 }
                 write_groups<scalar_t>(out_h.defined() ? out_h : kept[last], r0, r0 + cr, outs, scaled_from, scale);
             }
+#if defined(__AVX512F__)
+            _mm_sfence();  // (the streaming stores seen by every thread after the loop)
+#endif
         });
         std::copy(outs.begin(), outs.end(), saved.begin());
         if (save) {
