@@ -360,6 +360,19 @@ __attribute__((noinline)) void product_tiles(const std::vector<P>& pairs, const 
     }
 }
 
+// Column c of rows r + AHEAD and r + AHEAD + 1 of src [cr, w] asked of the memory now (where they are
+// rows of it): the backward's first reads of what the forward kept come from memory (the other calls
+// ran between), and a chunk's rows were too short a stream for the hardware prefetcher to run ahead
+// of them.
+constexpr int64_t AHEAD = 8;
+template <typename T>
+inline void prefetch_rows(const T* src, int64_t r, int64_t cr, int64_t w, int64_t c) {
+    if (r + AHEAD + 1 < cr) {
+        __builtin_prefetch(src + (r + AHEAD) * w + c, 0, 3);
+        __builtin_prefetch(src + (r + AHEAD + 1) * w + c, 0, 3);
+    }
+}
+
 // One chunk's share of db = the column sums of D (rows [0, cr) of D [., m]); nothing where pb is null.
 // Up to SB vectors of a row at a time, each its own sum over the rows in order (one sum a column
 // was a chain of dependent adds down a strided column).
@@ -399,6 +412,9 @@ void weight_partial(const T* d, int64_t m, const T* in, int64_t k, int64_t cr, T
             V acc[OB][GB] = {};
             for (int64_t r = 0; r < cr; ++r) {
                 V iv[GB];
+                if (o0 == 0) {  // (the first pass over these rows of In: a kept h or x, from memory)
+                    prefetch_rows(in, r, cr, k, v0 * L);
+                }
                 for (int j = 0; j < GB; ++j) {
                     iv[j] = j < nv ? loadv(in + r * k + (v0 + j) * L) : V{};
                 }
@@ -443,6 +459,7 @@ inline void store_pair(__m512 upper, __m512 lower, uint32_t* dst) {
 inline void row_pairs(const float* src, int64_t cr, int64_t w, uint32_t* dst) {
     for (int64_t r = 0; r < cr; r += 2) {
         for (int64_t c = 0; c < w; c += 16) {
+            prefetch_rows(src, r, cr, w, c);
             store_pair(_mm512_loadu_ps(src + r * w + c),
                        r + 1 < cr ? _mm512_loadu_ps(src + (r + 1) * w + c) : _mm512_setzero_ps(), dst + r / 2 * w + c);
         }
@@ -453,6 +470,7 @@ inline void row_pairs(const float* src, int64_t cr, int64_t w, uint32_t* dst) {
 inline void row_pairs16(const uint16_t* src, int64_t cr, int64_t w, uint32_t* dst) {
     for (int64_t r = 0; r < cr; r += 2) {
         for (int64_t c = 0; c < w; c += 16) {
+            prefetch_rows(src, r, cr, w, c);
             const __m256i a = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(src + r * w + c));
             const __m256i b = r + 1 < cr ? _mm256_loadu_si256(reinterpret_cast<const __m256i*>(src + (r + 1) * w + c))
                                          : _mm256_setzero_si256();
@@ -467,6 +485,7 @@ inline void row_pairs16(const uint16_t* src, int64_t cr, int64_t w, uint32_t* ds
 inline void silu_row_pairs(const float* z, int64_t cr, int64_t w, float* sig, uint32_t* dst) {
     for (int64_t r = 0; r < cr; r += 2) {
         for (int64_t c = 0; c < w; c += 16) {
+            prefetch_rows(z, r, cr, w, c);
             const VT<float>::v za = loadv(z + r * w + c), sa = sigmoid<float>(za);
             storev(sig + r * w + c, sa);
             __m512 lower = _mm512_setzero_ps();
@@ -1295,6 +1314,9 @@ std::vector<at::Tensor> mlp_backward(
                     } else if (i > 0 && activation == SILU) {
                         scalar_t* h = recomputed.get() + slot;
                         for (int64_t e = 0; e < cr * k; e += LANES<scalar_t>) {
+                            if (e + AHEAD * k < cr * k) {  // (prefetch_rows': z from memory)
+                                __builtin_prefetch(in + e + AHEAD * k, 0, 3);
+                            }
                             const typename VT<scalar_t>::v z = loadv(in + e), sz = sigmoid<scalar_t>(z);
                             storev(sig + e, sz);
                             storev(h + e, z * sz);
