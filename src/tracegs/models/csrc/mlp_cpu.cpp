@@ -412,8 +412,8 @@ void weight_partial(const T* d, int64_t m, const T* in, int64_t k, int64_t cr, T
             V acc[OB][GB] = {};
             for (int64_t r = 0; r < cr; ++r) {
                 V iv[GB];
-                if (o0 == 0) {  // (the first pass over these rows of In: a kept h or x, from memory)
-                    prefetch_rows(in, r, cr, k, v0 * L);
+                for (int j = 0; o0 == 0 && j < nv; ++j) {  // (the first pass over In's rows: from memory)
+                    prefetch_rows(in, r, cr, k, (v0 + j) * L);
                 }
                 for (int j = 0; j < GB; ++j) {
                     iv[j] = j < nv ? loadv(in + r * k + (v0 + j) * L) : V{};
@@ -625,8 +625,8 @@ inline at::Tensor as_type(const at::Tensor& t, at::ScalarType type) {
     return t.scalar_type() == type ? t : t.to(type);
 }
 
-// Columns [c, c + lanes) of a row of n floats, those from n on zero: a masked load with AVX (nothing
-// past the row read), else lane by lane. (A row's std::copy of ~40 floats and its padding's fill were
+// Columns [c, c + lanes) of a row of n floats, those from n on zero: a masked load with AVX2 or AVX-512
+// (nothing past the row read), else lane by lane. (A row's std::copy of ~40 floats and its padding's fill were
 // two library calls a row: ~10% of a forward at the fields' sizes.)
 inline VT<float>::v load_part(const float* row, int64_t c, int64_t n) {
     VT<float>::v v;
@@ -635,7 +635,7 @@ inline VT<float>::v load_part(const float* row, int64_t c, int64_t n) {
     const __mmask16 keep = left >= 16 ? __mmask16(0xFFFF) : left > 0 ? __mmask16((1u << left) - 1) : __mmask16(0);
     const __m512 x = _mm512_maskz_loadu_ps(keep, row + c);
     std::memcpy(&v, &x, sizeof(v));
-#elif defined(__AVX__)
+#elif defined(__AVX2__)
     const __m256i lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
     const __m256i keep = _mm256_cmpgt_epi32(_mm256_set1_epi32(int(std::min<int64_t>(n - c, 8))), lanes);
     const __m256 x = _mm256_maskload_ps(row + c, keep);
