@@ -810,22 +810,14 @@ struct BackwardStore {  // dz_{i-1} = (dz_i W_i) act'(z_{i-1}), from z and its s
     }
 };
 
-// Rows [r0, r1) of x [N, E] float32 (any strides) as bf16 rows of ke columns (the padding zero), each
-// value rounded to the nearest even, into dst from its row r0: the operand A of bf16 products.
+// Rows [r0, r1) of x [N, E] float32 (its columns contiguous) as bf16 rows of ke columns (the padding
+// zero), each value rounded to the nearest even, into dst from its row r0: the operand A of bf16 products.
 inline void pack_rows_bf16(const at::Tensor& x, int64_t r0, int64_t r1, uint16_t* dst, int64_t ke) {
-    const int64_t cols = x.size(1), rs = x.stride(0), cs = x.stride(1);
+    TORCH_CHECK(x.stride(1) == 1, "pack_rows_bf16: x's columns must be contiguous");
     const float* src = x.data_ptr<float>();
-    std::vector<float> row(cs == 1 ? 0 : cols);  // (a strided row gathered first)
     for (int64_t r = r0; r < r1; ++r) {
-        const float* at = src + r * rs;
-        if (cs != 1) {
-            for (int64_t c = 0; c < cols; ++c) {
-                row[c] = at[c * cs];
-            }
-            at = row.data();
-        }
         for (int64_t c = 0; c < ke; c += LANES<float>) {
-            store_copy<float>(dst + r * ke, c, load_part(at, c, cols));
+            store_copy<float>(dst + r * ke, c, load_part(src + r * x.stride(0), c, x.size(1)));
         }
     }
 }
@@ -1085,7 +1077,9 @@ std::vector<at::Tensor> mlp_forward(
         }
         // x [N padded to PAD rows, E padded], each chunk's rows packed by its thread: as bf16 only with
         // bf16 products (their operand, and the backward's; a float copy was a pass over memory for nothing)
-        const at::Tensor xt = as_type(x, c10::CppTypeToScalarType<scalar_t>::value);
+        // (contiguous for pack_rows_bf16 in a bf16 call: the fields' inputs already are)
+        const at::Tensor xt0 = as_type(x, c10::CppTypeToScalarType<scalar_t>::value);
+        const at::Tensor xt = bf16 ? xt0.contiguous() : xt0;
         const int64_t rows = padded(n), ke = padded(x.size(1)), last = layers - 1;
         const auto options = x.options().dtype(xt.scalar_type());
         at::Tensor input, input_bf16;
