@@ -77,8 +77,10 @@ def test_random_states_round_trip_every_generator():
     assert (random.random(), float(np.random.rand()), np.random.randn(), float(torch.rand(()))) == first
 
 
-def test_hardware_bf16_is_read_from_the_cpu_flags(tmp_path):
+def test_hardware_bf16_is_read_from_the_cpu_flags(tmp_path, monkeypatch):
     from tracegs.utils import cpu_has_fast_bf16
+
+    monkeypatch.delenv("ATEN_CPU_CAPABILITY", raising=False)
 
     def cpu(name, flags):
         path = tmp_path / name
@@ -92,3 +94,7 @@ def test_hardware_bf16_is_read_from_the_cpu_flags(tmp_path):
     assert cpu_has_fast_bf16(cpu("zen4", "avx2 avx512f avx512_bf16"))
     assert cpu_has_fast_bf16(cpu("spr", "avx2 avx512f avx512_bf16 amx_bf16 amx_tile"))
     assert not cpu_has_fast_bf16(str(tmp_path / "missing"))
+    monkeypatch.setenv("ATEN_CPU_CAPABILITY", "avx2")  # (a process held to AVX2: as an AVX2-only CPU)
+    assert not cpu_has_fast_bf16(cpu("zen4", "avx2 avx512f avx512_bf16"))
+    monkeypatch.setenv("ATEN_CPU_CAPABILITY", "avx512")
+    assert cpu_has_fast_bf16(cpu("zen4", "avx2 avx512f avx512_bf16"))
