@@ -78,9 +78,11 @@ def test_random_states_round_trip_every_generator():
 
 
 def test_hardware_bf16_is_read_from_the_cpu_flags(tmp_path, monkeypatch):
+    import torch
+
     from tracegs.utils import cpu_has_fast_bf16
 
-    monkeypatch.delenv("ATEN_CPU_CAPABILITY", raising=False)
+    monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: "AVX512")
 
     def cpu(name, flags):
         path = tmp_path / name
@@ -94,7 +96,7 @@ def test_hardware_bf16_is_read_from_the_cpu_flags(tmp_path, monkeypatch):
     assert cpu_has_fast_bf16(cpu("zen4", "avx2 avx512f avx512_bf16"))
     assert cpu_has_fast_bf16(cpu("spr", "avx2 avx512f avx512_bf16 amx_bf16 amx_tile"))
     assert not cpu_has_fast_bf16(str(tmp_path / "missing"))
-    monkeypatch.setenv("ATEN_CPU_CAPABILITY", "avx2")  # (a process held to AVX2: as an AVX2-only CPU)
+    monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: "AVX2")  # (ATen held to AVX2)
     assert not cpu_has_fast_bf16(cpu("zen4", "avx2 avx512f avx512_bf16"))
-    monkeypatch.setenv("ATEN_CPU_CAPABILITY", "avx512")
+    monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: "AVX512")
     assert cpu_has_fast_bf16(cpu("zen4", "avx2 avx512f avx512_bf16"))

@@ -186,10 +186,8 @@ def cpu_has_fast_bf16(cpuinfo: str = "/proc/cpuinfo") -> bool:
     """True on x86 CPUs with bf16 dot products in hardware: AMX-BF16 tiles (Intel Xeon since Sapphire
     Rapids) or AVX512-BF16 (AMD Zen 4 and later, Intel Cooper Lake). There bf16 autocast makes the
     fields' matrix products faster (AMX: oneDNN's tiles; AVX512-BF16: the fused MLPs' bf16 products,
-    ``models/fused_mlp.py``); elsewhere bf16 is emulated and slower than fp32. A process whose ATen is
-    held below AVX-512 (``ATEN_CPU_CAPABILITY=avx2`` or ``default``, as ``cpp.ISA_ENVIRONMENTS``' avx2)
-    runs as an AVX2-only CPU would: False there."""
-    held = os.environ.get("ATEN_CPU_CAPABILITY", "").strip().lower()
-    if held and not held.startswith("avx512"):
-        return False
-    return bool(cpu_flags(cpuinfo) & {"amx_bf16", "avx512_bf16"})
+    ``models/fused_mlp.py``); elsewhere bf16 is emulated and slower than fp32. A process whose ATen runs
+    below AVX-512 (``torch.backends.cpu.get_cpu_capability``: e.g. held by ``ATEN_CPU_CAPABILITY=avx2``,
+    as ``cpp.ISA_ENVIRONMENTS``' avx2) runs as an AVX2-only CPU would: False there."""
+    flags = cpu_flags(cpuinfo) & {"amx_bf16", "avx512_bf16"}
+    return bool(flags) and torch.backends.cpu.get_cpu_capability().upper().startswith("AVX512")

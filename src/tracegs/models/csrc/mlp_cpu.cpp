@@ -656,15 +656,13 @@ void pack_rows(const at::Tensor& w, int64_t r0, int64_t r1, T* o, int64_t pc) {
     const int64_t cols = w.size(1), rs = w.stride(0), cs = w.stride(1);
     const T* src = w.data_ptr<T>();
     for (int64_t r = r0; r < r1; ++r) {
-        if constexpr (std::is_same_v<T, float>) {
-            if (cs == 1) {  // (a row a vector at a time: the fields' inputs, [N, E])
+        if (cs == 1) {  // (the fields' inputs, [N, E])
+            if constexpr (std::is_same_v<T, float>) {  // (a vector at a time, the padding with it)
                 for (int64_t c = 0; c < pc; c += LANES<float>) {
                     storev(o + r * pc + c, load_part(src + r * rs, c, cols));
                 }
                 continue;
             }
-        }
-        if (cs == 1) {  // (a row in one copy)
             std::copy(src + r * rs, src + r * rs + cols, o + r * pc);
         } else {
             for (int64_t c = 0; c < cols; ++c) {
