@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import json
 import pickle
+import zipfile
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -143,14 +144,31 @@ def load_tensors(path: Path, device: torch.device | str = "cpu") -> dict:
     try:
         return torch.load(path, map_location=device, weights_only=True)
     except pickle.UnpicklingError as err:
-        first = first_line(err)
+        if not _written_by_torch_save(path):  # (other bytes, not an object refused)
+            raise RunError(f"{path}: not a readable checkpoint (not a file torch.save writes)") from None
+        detail = _unpickler_detail(err)
         raise RunError(
             f"{path}: refused: it holds pickled Python objects other than tensors and plain data, which "
-            f"could run code when loaded ({first}). tracegs never writes such objects; open run "
+            f"could run code when loaded ({detail}). tracegs never writes such objects; open run "
             "folders only from sources you trust."
         ) from None
     except (RuntimeError, EOFError, OSError) as err:
-        raise RunError(f"{path}: not a readable checkpoint ({first_line(err)})") from None
+        raise RunError(f"{path}: not a readable checkpoint ({first_line(err).split('. ')[0]})") from None
+
+
+def _written_by_torch_save(path: Path) -> bool:
+    """Whether ``path`` starts as torch.save's files do: a zip archive, or (its legacy format) a pickle."""
+    with open(path, "rb") as f:
+        head = f.read(2)
+    return zipfile.is_zipfile(path) or head[:1] == b"\x80"
+
+
+def _unpickler_detail(err: pickle.UnpicklingError) -> str:
+    """The global torch's restricted unpickler refused, as its message names it (else its first line)."""
+    for line in str(err).splitlines():
+        if "GLOBAL" in line:
+            return line.strip().split(". ")[0].rstrip(".")
+    return first_line(err)
 
 
 CHECKPOINT_KEYS = ("model", "step", "train_seconds", "t_max")

@@ -375,6 +375,13 @@ RUN_CASES = [
     ),
     ("planted pickle payload", _plant_pickle, ["render"], "checkpoint.pt", "refused"),
     (
+        "checkpoint of other bytes",
+        lambda r: (r / "checkpoint.pt").write_bytes(b"not a checkpoint"),
+        ["render"],
+        "checkpoint.pt",
+        "not a readable checkpoint",
+    ),
+    (
         "eval on a moved scene",
         _config(lambda d: d.update(data="/nonexistent/scene")),
         ["eval"],
