@@ -509,6 +509,20 @@ def test_a_bf16_run_is_rendered_in_fp32_on_cpus_without_hardware_bf16(
     assert torch.equal(means, model.deform(0.5)["means"]) != fast_bf16
 
 
+@pytest.mark.parametrize("fast_bf16", [False, True])
+def test_a_bf16_config_trains_in_fp32_on_cpus_without_hardware_bf16(
+    tiny_scene, tmp_path, monkeypatch, fast_bf16
+):
+    import tracegs.train.trainer
+
+    monkeypatch.setattr(tracegs.train.trainer, "cpu_has_fast_bf16", lambda: fast_bf16)
+    trainer = Trainer(
+        _cfg(tiny_scene, tmp_path / "run", bf16=True), progress=False
+    )  # (as --resume reads one)
+    assert trainer.cfg.bf16 and trainer.model.bf16 == fast_bf16
+    assert ("fields train in fp32" in trainer.describe()) != fast_bf16
+
+
 def test_describe_names_the_images_steps_and_a_downscale_for_large_images(tiny_scene, tmp_path):
     trainer = Trainer(_cfg(tiny_scene, tmp_path / "run"), progress=False)
     line = trainer.describe()

@@ -40,6 +40,10 @@ def describe(trainer) -> str:
         f"stage 2) on {trainer.device} "
         f"({resolve_backend(cfg.backend, trainer.device)} rasteriser, fields in the {frame})"
     )
+    if cfg.bf16 and not trainer.model.bf16 and trainer.device.type == "cpu":
+        text += (
+            "\n  note: the fields train in fp32, not bf16: this CPU has no bf16 products (AMX or AVX512-BF16)"
+        )
     pixels = cam.width * cam.height
     if trainer.device.type == "cpu" and cfg.preset == "cpu-fast" and pixels > 4 * 128 * 128:
         factor = math.ceil(math.sqrt(pixels / (128 * 128)))
