@@ -521,6 +521,7 @@ def test_a_bf16_config_trains_in_fp32_on_cpus_without_hardware_bf16(
     )  # (as --resume reads one)
     assert trainer.cfg.bf16 and trainer.model.bf16 == fast_bf16
     assert ("fields train in fp32" in trainer.describe()) != fast_bf16
+    assert trainer.summary()["fields_dtype"] == ("bf16" if fast_bf16 else "fp32")
 
 
 def test_describe_names_the_images_steps_and_a_downscale_for_large_images(tiny_scene, tmp_path):

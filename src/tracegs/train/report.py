@@ -77,6 +77,7 @@ def summary(trainer) -> dict:
         "device": str(trainer.device),
         "threads": trainer.threads.changes if trainer.threads else [],
         "rasteriser": resolve_backend(trainer.cfg.backend, trainer.device),
+        "fields_dtype": "bf16" if trainer.model.bf16 and trainer.device.type == "cpu" else "fp32",
         "tracegs": __version__,
         "commit": current_commit(),
         "machine": machine_description(),
