@@ -224,6 +224,14 @@ def gaussians_of(model_state: dict):
     )
 
 
+def fields_in_bf16(cfg: TrainConfig) -> bool:
+    """Whether a model of ``cfg`` runs its fields in bf16 on this machine: where the config asks for it
+    and the CPU multiplies bf16 in hardware (AMX or AVX512-BF16, as `cpu-fast` chooses). A config made
+    on another machine (a run loaded or resumed there, a sweep's task) asks for it where it would be
+    emulated, ~8x slower a step; fp32 gives the fields' values exactly."""
+    return cfg.bf16 and cpu_has_fast_bf16()
+
+
 def _trained_model(cfg: TrainConfig, run: Path, device: str) -> tuple[TraceModel, dict]:
     """The model of ``run``'s checkpoint (in eval mode) and the checkpoint."""
     path = run / CHECKPOINT
@@ -240,9 +248,7 @@ def _trained_model(cfg: TrainConfig, run: Path, device: str) -> tuple[TraceModel
             f"{path}: a checkpoint of another tracegs version, or of other settings than {run / CONFIG} "
             f"({first_line(err)}); train into a new --run folder"
         ) from None
-    # A run trained in bf16 (on AMX or AVX512-BF16, as `cpu-fast` chooses) is rendered in fp32 on CPUs
-    # without either: there bf16 is slower, and fp32 gives the fields' values exactly.
-    model.bf16 = cfg.bf16 and cpu_has_fast_bf16()
+    model.bf16 = fields_in_bf16(cfg)
     model.set_static_mask(ckpt.get("static_mask"))
     return model.eval(), ckpt
 

@@ -513,9 +513,9 @@ def test_a_bf16_run_is_rendered_in_fp32_on_cpus_without_hardware_bf16(
 def test_a_bf16_config_trains_in_fp32_on_cpus_without_hardware_bf16(
     tiny_scene, tmp_path, monkeypatch, fast_bf16
 ):
-    import tracegs.train.trainer
+    import tracegs.run
 
-    monkeypatch.setattr(tracegs.train.trainer, "cpu_has_fast_bf16", lambda: fast_bf16)
+    monkeypatch.setattr(tracegs.run, "cpu_has_fast_bf16", lambda: fast_bf16)
     trainer = Trainer(
         _cfg(tiny_scene, tmp_path / "run", bf16=True), progress=False
     )  # (as --resume reads one)

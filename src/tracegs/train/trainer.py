@@ -36,6 +36,7 @@ from ..run import (
     LOG,
     SUMMARY,
     RunError,
+    fields_in_bf16,
     load_extrapolation,
     load_tensors,
     lock_run,
@@ -43,14 +44,7 @@ from ..run import (
     save_extrapolation,
     truncate_log,
 )
-from ..utils import (
-    atomic_write_text,
-    cpu_has_fast_bf16,
-    remove_temporaries,
-    resolve_device,
-    seed_everything,
-    synchronize,
-)
+from ..utils import atomic_write_text, remove_temporaries, resolve_device, seed_everything, synchronize
 from .checkpoint import (
     Checkpoints,
     check_resumable,
@@ -123,10 +117,7 @@ class Trainer:
         gaussians = initial_gaussians(cfg, self.aabb, self.device, log, self.data.scene.frames)
         cameras = sorted({v.camera_id for v in self.data.views if v.camera_id is not None})
         self.model = TraceModel(cfg, gaussians, self.aabb, self.dt_frame, cameras).to(self.device)
-        # bf16 fields only where this CPU multiplies bf16 in hardware, as ``run.load_run`` renders: a
-        # config made on another machine (``--resume``, a sweep's task) may ask for them where they
-        # would be emulated, ~8x slower a step
-        self.model.bf16 = cfg.bf16 and cpu_has_fast_bf16()
+        self.model.bf16 = fields_in_bf16(cfg)  # (not cfg.bf16 alone: a config made on another CPU)
         self.model.set_field_frame(*field_frame(cfg, self.data))
         self.model.set_near_plane(cfg.near_plane * capture_scale(self.data))
         self.optimizers = gaussian_optimizers(self.model.gaussians, cfg.optim, self.extent)
