@@ -49,6 +49,7 @@ def test_a_planted_pickle_in_a_checkpoint_is_refused_without_running_it(tmp_path
     with pytest.raises(RunError, match="refused") as err:
         load_run(run, device="cpu")
     assert str(run / CHECKPOINT) in str(err.value)
+    assert "system" in str(err.value)  # (the global it would have called, as the unpickler names it)
     assert not marker.exists()
 
 

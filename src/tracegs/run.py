@@ -167,7 +167,7 @@ def _unpickler_detail(err: pickle.UnpicklingError) -> str:
     """The global torch's restricted unpickler refused, as its message names it (else its first line)."""
     for line in str(err).splitlines():
         if "GLOBAL" in line:
-            return line.strip().split(". ")[0].rstrip(".")
+            return line.split("error:", 1)[-1].strip().split(". ")[0].rstrip(".")
     return first_line(err)
 
 
