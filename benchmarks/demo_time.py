@@ -75,7 +75,7 @@ def merge_row(rows: list[dict], new: dict) -> list[dict]:
     return merged if placed else [*merged, new]
 
 
-def run_demo(out: Path, isa: str) -> float:
+def time_demo(out: Path, isa: str) -> float:
     """``tracegs demo --out out`` in a new process held to ``isa``; its wall time in seconds."""
     shutil.rmtree(out, ignore_errors=True)
     command = [sys.executable, "-m", "tracegs", "demo", "--out", str(out)]
@@ -92,7 +92,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("runs/demo_time"), help="the demo's folder (replaced)")
     ap.add_argument("--json", type=Path, default=None, help="the demo record to put the row in")
     args = ap.parse_args()
-    seconds = run_demo(args.out, args.isa)
+    seconds = time_demo(args.out, args.isa)
     today = datetime.datetime.now(datetime.timezone.utc).date().isoformat()
     row = demo_row(args.out / "trace", args.isa, seconds, current_commit(), today)
     print(json.dumps(row))

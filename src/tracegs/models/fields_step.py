@@ -72,17 +72,16 @@ def applies(model, t_prime: float, t: float) -> bool:
     ):
         return False
     if not (
-        encoding.NATIVE and deformation.NATIVE_DEFORM and fused.ENABLED and fused_mlp.serves(_bf16(model))
+        encoding.NATIVE
+        and deformation.NATIVE_DEFORM
+        and fused.ENABLED
+        and fused_mlp.serves(model.fields_bf16)
     ):
         return False
     if fused.EXTENSION.load() is None:
         return False
     rows = model.moving_rows
     return (means.shape[0] if rows is None else rows.numel()) >= 2  # (the fused MLP's smallest input)
-
-
-def _bf16(model) -> bool:
-    return bool(model.bf16) and model.aabb.device.type == "cpu"  # (``TraceModel.autocast``)
 
 
 def training_state(model, t_prime: float, t: float, t_check: float | None):
@@ -115,7 +114,7 @@ def training_state(model, t_prime: float, t: float, t_check: float | None):
         identity=head.identity,
         frame=None if model.fields_see_world else (model.field_center, float(model.field_scale)),
         to_field=model.to_field_frame,
-        bf16=_bf16(model),
+        bf16=model.fields_bf16,
         t_prime=float(t_prime),
         query_time=float(t_prime if stage.physics_derivation else t),
         t_check=float(t_check),

@@ -39,7 +39,8 @@ class TraceModel(nn.Module):
         super().__init__()
         self.cfg = cfg
         self.bf16 = cfg.bf16
-        """bf16 autocast of the fields on CPU; ``run.load_run`` turns it off on CPUs without hardware bf16."""
+        """bf16 autocast of the fields on CPU; ``run.fields_in_bf16`` (loading and training) keeps it only on
+        CPUs with hardware bf16."""
         self.gaussians = gaussians
         self.register_buffer("aabb", aabb.clone().float())
         self.register_buffer("frame_interval", torch.tensor(float(frame_interval)))
@@ -115,9 +116,14 @@ class TraceModel(nn.Module):
         if hasattr(self.deformation, "fit_bounds"):
             self.deformation.fit_bounds(self.to_field_frame(self.gaussians["means"].detach()))
 
+    @property
+    def fields_bf16(self) -> bool:
+        """Whether the fields run under bf16 autocast: ``bf16`` set and the model on the CPU."""
+        return bool(self.bf16) and self.aabb.device.type == "cpu"
+
     def autocast(self):
         """bf16 autocast for the fields on CPU when configured (AMX or AVX512-BF16: faster products)."""
-        if self.bf16 and self.aabb.device.type == "cpu":
+        if self.fields_bf16:
             return torch.autocast("cpu", dtype=torch.bfloat16)
         return contextlib.nullcontext()
 

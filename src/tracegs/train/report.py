@@ -40,7 +40,7 @@ def describe(trainer) -> str:
         f"stage 2) on {trainer.device} "
         f"({resolve_backend(cfg.backend, trainer.device)} rasteriser, fields in the {frame})"
     )
-    if cfg.bf16 and not trainer.model.bf16 and trainer.device.type == "cpu":
+    if cfg.bf16 and not trainer.model.fields_bf16 and trainer.device.type == "cpu":
         text += (
             "\n  note: the fields train in fp32, not bf16: this CPU has no bf16 products (AMX or AVX512-BF16)"
         )
@@ -77,7 +77,7 @@ def summary(trainer) -> dict:
         "device": str(trainer.device),
         "threads": trainer.threads.changes if trainer.threads else [],
         "rasteriser": resolve_backend(trainer.cfg.backend, trainer.device),
-        "fields_dtype": "bf16" if trainer.model.bf16 and trainer.device.type == "cpu" else "fp32",
+        "fields_dtype": "bf16" if trainer.model.fields_bf16 else "fp32",
         "tracegs": __version__,
         "commit": current_commit(),
         "machine": machine_description(),
