@@ -23,7 +23,8 @@ from torch import nn
 from tracegs.data.scene import load_scene
 from tracegs.export.command import export_run
 from tracegs.export.ply import read_gaussians
-from tracegs.export.render import pick_camera, render_at, render_gaussians
+from tracegs.export.render import pick_camera
+from tracegs.extrapolate import Predictor
 from tracegs.run import load_run
 from tracegs.utils import atomic_write_image
 
@@ -58,21 +59,22 @@ def main() -> None:
     parser.add_argument("--device", default="cpu")
     args = parser.parse_args()
     loaded = load_run(args.run, args.device)
-    model, state, cfg = loaded.model, loaded.state, loaded.config
+    cfg = loaded.config
     data = args.data or cfg.data
-    dev = model.aabb.device
+    predictor = loaded.predictor.with_background(load_scene(data, "train").background)
+    dev = predictor.device
     camera = pick_camera(data, args.camera, cfg.downscale).to(dev)
-    background = torch.tensor(load_scene(data, "train").background, device=dev)
     with tempfile.TemporaryDirectory() as folder:
         report = export_run(args.run, times=args.times, out=folder, device=args.device)
         index = json.loads(Path(report["index"]).read_text())
         own, back = [], []
         for t, name in zip(index["times"], index["files"]["ply"], strict=True):
             params = read_gaussians(Path(folder) / name, dev)
-            own.append(render_at(model, state, t, camera, background).cpu().numpy())
-            back.append(
-                render_gaussians(with_gaussians(model, params), params, camera, background).cpu().numpy()
+            own.append(predictor.render(camera, t).cpu().numpy())
+            reloaded = Predictor(
+                with_gaussians(predictor.model, params), predictor.state, background=predictor.background
             )
+            back.append(reloaded.render(camera, gaussians=params).cpu().numpy())
     diff = max(float(np.abs(a - b).max()) for a, b in zip(own, back, strict=True))
     atomic_write_image(args.out, strip([own, back]))
     predicted = [f"{t:g}" for t, p in zip(index["times"], index["predicted"], strict=True) if p]

@@ -17,13 +17,11 @@ from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
-import torch
 
 from tracegs.data.dataset import frame_interval
 from tracegs.data.frames import load_image
 from tracegs.data.scene import load_scene
 from tracegs.eval.protocol import evaluate_run
-from tracegs.export.render import render_at
 from tracegs.results import make_record, write_record
 from tracegs.run import load_run
 
@@ -92,8 +90,8 @@ def figure(run: Path, out: Path, t: float) -> Path:
     cfg = loaded.config
     test = load_scene(cfg.data, "test", cfg.downscale)
     frames = [f for f in test.frames if abs(f.time - t) < 1e-6]
-    bg = torch.tensor(test.background)
-    top = [render_at(loaded.model, loaded.state, t, f.camera, bg).numpy() for f in frames]
+    predictor = loaded.predictor.with_background(test.background)
+    top = [predictor.render(f.camera, t).numpy() for f in frames]
     bottom = [load_image(f, test.background).numpy() for f in frames]
     grid = np.concatenate([np.concatenate(top, 1), np.concatenate(bottom, 1)], 0)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -12,13 +12,10 @@ import argparse
 import json
 from pathlib import Path
 
-import torch
-
 from tracegs.config import make_config
 from tracegs.data.scene import load_image, load_scene
 from tracegs.data.synth import synthesize
 from tracegs.eval.metrics import mae_psnr, mse, ssim
-from tracegs.extrapolate import gaussians_at
 from tracegs.results import make_record, write_record
 from tracegs.run import load_run
 from tracegs.train.trainer import Trainer
@@ -44,16 +41,13 @@ def main() -> None:
     cfg = make_config(args.preset, data=data, run=run, method="static", static_iterations=args.iterations)
     summary = Trainer(cfg, progress=False).train()
     loaded = load_run(run, "cpu")
-    model, cfg = loaded.model, loaded.config
     scene = load_scene(data, "val")
-    background = torch.tensor(scene.background)
+    predictor = loaded.predictor.with_background(scene.background)
     mses, ssims = [], []
     for f in scene.frames:
         if f.time != 0.0:
             continue
-        pred = model.render(
-            gaussians_at(model, loaded.state, 0.0), f.camera, cfg.sh_degree, background
-        ).image.clamp(0, 1)
+        pred = predictor.render(f.camera, 0.0)
         gt = load_image(f, scene.background)
         mses.append(float(mse(pred, gt)))
         ssims.append(float(ssim(pred, gt)))

@@ -97,7 +97,8 @@ def about(angle: float, pivot: torch.Tensor, axis=None) -> tuple[torch.Tensor, t
 def blob_model(centres: list[tuple], motions: list, joint_laws: bool = True):
     """A model of blobs of Gaussians about ``centres`` (their means), one per entry, whose f_defo moves blob ``i`` by
     the rigid transform ``motions[i](t)`` ``(R, T)`` (None: still); f_trd is zero (its physics holds
-    everything where the handover leaves it). Returns the model and each blob's rows."""
+    everything where the handover leaves it). Returns the model, its extrapolation settings and each
+    blob's rows."""
     from tracegs.config import make_config
     from tracegs.physics.so3 import quat_multiply, rotmat_to_quat
 
@@ -130,4 +131,4 @@ def blob_model(centres: list[tuple], motions: list, joint_laws: bool = True):
         return {"means": means.float(), "quats": quats, "scales": g["scales"].detach()}
 
     model.deform = deform  # f_defo, the truth: exact
-    return model, rows
+    return model, dyn, rows

@@ -15,8 +15,7 @@ from tests.conftest import randomised_model
 from tests.render.render_helpers import PARAMS, hard_scene, native_available, rel_err, render_with_grads
 from tracegs.config import apply_overrides, make_config
 from tracegs.data.dataset import ViewDataset
-from tracegs.export.render import render_at
-from tracegs.extrapolate import ExtrapolationState, gaussians_at
+from tracegs.extrapolate import ExtrapolationState, Predictor
 from tracegs.run import load_run
 from tracegs.train.trainer import Trainer
 
@@ -51,8 +50,8 @@ def test_fields_move_gaussians_the_same_on_cuda(switch, frame):
         for name, (a, b) in {
             "training_state": (cpu.training_state(0.4, 0.45)[0], gpu.training_state(0.4, 0.45)[0]),
             "extrapolated": (
-                gaussians_at(cpu, ExtrapolationState(t_max=0.75), 1.3),
-                gaussians_at(gpu, ExtrapolationState(t_max=0.75), 1.3),
+                Predictor(cpu, ExtrapolationState(t_max=0.75)).gaussians_at(1.3),
+                Predictor(gpu, ExtrapolationState(t_max=0.75)).gaussians_at(1.3),
             ),
         }.items():
             assert not torch.allclose(a["means"], cpu.gaussians["means"], atol=1e-3), "fields do not move"
@@ -76,7 +75,7 @@ def test_run_trained_on_cuda_renders_the_same_on_cpu(tiny_scene, tmp_path, switc
     for dev, loaded in models.items():
         views = ViewDataset(tiny_scene, "test", device=dev)
         images[dev] = [
-            render_at(loaded.model, loaded.state, v.time, v.camera, views.background).cpu() for v in views
+            loaded.predictor.with_background(views.background).render(v.camera, v.time).cpu() for v in views
         ]
     for gpu, cpu in zip(images["cuda"], images["cpu"], strict=True):
         assert cpu.std() > 0.01  # something was rendered

@@ -27,7 +27,8 @@ import torch
 
 from .config import TrainConfig, config_from_dict, config_to_dict
 from .config.validate import check_choices
-from .extrapolate import ExtrapolationState, has_policy
+from .data.scene import load_scene
+from .extrapolate import ExtrapolationState, Predictor, has_policy
 from .models.gaussians import empty_like_params
 from .models.trace import TraceModel
 from .run_compat import migrate_config
@@ -206,14 +207,25 @@ def load_extrapolation(run: Path, device: torch.device | str = "cpu") -> Extrapo
 # ----- a trained run ------------------------------------------------------------------------------
 @dataclass
 class Run:
-    """A trained run as read from its folder."""
+    """A trained run as read from its folder: its ``predictor`` (the model, its post-training state and
+    settings: ``extrapolate.Predictor``) and what the folder says of it."""
 
     path: Path
-    model: TraceModel
+    predictor: Predictor
     config: TrainConfig
-    state: ExtrapolationState
     meta: dict
     """``step``, ``train_seconds``, ``t_max``."""
+    data: Path | None = None
+    """The scene folder it renders on (``run_data``): where the render background was read; None when
+    the folder is not there (the background then black)."""
+
+    @property
+    def model(self) -> TraceModel:
+        return self.predictor.model
+
+    @property
+    def state(self) -> ExtrapolationState:
+        return self.predictor.state
 
 
 def gaussians_of(model_state: dict):
@@ -253,9 +265,11 @@ def _trained_model(cfg: TrainConfig, run: Path, device: str) -> tuple[TraceModel
     return model.eval(), ckpt
 
 
-def load_run(run: str | Path, device: str = "auto") -> Run:
-    """A trained run (for rendering and evaluation). Nothing is fitted or trained here: a TRACE run
-    without its post-training state raises RunError with the command that makes it."""
+def load_run(run: str | Path, device: str = "auto", data: str | Path | None = None) -> Run:
+    """A trained run (for rendering and evaluation), its predictor rendering on the background of its
+    scene (``data`` when given, else the one it was trained on, when that folder is there). Nothing is
+    fitted or trained here: a TRACE run without its post-training state raises RunError with the command
+    that makes it."""
     run = Path(run)
     cfg = load_config(run / CONFIG)
     model, ckpt = _trained_model(cfg, run, device)
@@ -274,7 +288,20 @@ def load_run(run: str | Path, device: str = "auto") -> Run:
             )
         state = ExtrapolationState(t_max=float(ckpt["t_max"]))
     meta = {"step": ckpt["step"], "train_seconds": ckpt["train_seconds"], "t_max": ckpt["t_max"]}
-    return Run(run, model, cfg, state, meta)
+    scene, background = _scene_background(cfg, data)
+    return Run(run, Predictor(model, state, cfg.extrapolation, background), cfg, meta, scene)
+
+
+def _scene_background(cfg: TrainConfig, data: str | Path | None) -> tuple[Path | None, tuple | None]:
+    """(the scene folder of a run, its training split's background), or (None, None) where there is no
+    scene to read (a run folder copied without its scene renders on black)."""
+    try:
+        path = run_data(cfg, data)
+    except FileNotFoundError:
+        if data is not None:
+            raise
+        return None, None
+    return path, load_scene(path, "train", cfg.downscale).background
 
 
 def calibrate_run(
@@ -296,10 +323,10 @@ def calibrate_run(
     if data is not None:
         cfg.data = Path(data).resolve()
     model, ckpt = _trained_model(cfg, run, device)
-    state = calibrate(model, float(ckpt["t_max"]))
-    save_extrapolation(run, state)
+    predictor = calibrate(model, float(ckpt["t_max"]), cfg.extrapolation, run_data(cfg), cfg.downscale)
+    save_extrapolation(run, predictor.state)
     save_config(cfg, run / CONFIG)
-    return state
+    return predictor.state
 
 
 # ----- whether a run folder was made with a config ------------------------------------------------

@@ -12,7 +12,8 @@ import pytest
 from tests.conftest import write_tiny_scene
 from tracegs.cli import main
 from tracegs.config import PRESETS, validate
-from tracegs.export.render import check_time, even_size, write_video
+from tracegs.export.render import even_size, write_video
+from tracegs.extrapolate import check_time
 
 
 def test_a_video_at_an_odd_image_size_is_written_and_plays(tmp_path, capsys):

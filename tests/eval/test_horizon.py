@@ -7,6 +7,7 @@ import torch
 
 from tracegs.config import make_config
 from tracegs.eval.horizon import long_horizon
+from tracegs.extrapolate import Predictor
 from tracegs.run import load_run
 from tracegs.train.trainer import Trainer
 
@@ -44,22 +45,21 @@ def test_a_run_whose_scene_moved_names_the_folder_and_asks_for_data(tiny_scene, 
 
 
 def test_in_sight_is_the_share_of_what_moves_that_stays_near(tiny_scene, tmp_path, monkeypatch):
-    import tracegs.eval.horizon as horizon
     from tracegs.models.trace import TraceModel
 
     Trainer(
         make_config("tiny", data=tiny_scene, run=tmp_path / "run", init_points=60), progress=False
     ).train()
-    real = horizon.gaussians_at
+    real = Predictor.gaussians_at
 
-    def flying(model, state, t):  # the first quarter of the Gaussians leave after the training span
-        g = dict(real(model, state, t))
-        if t > float(state.t_max) + 1e-6:
+    def flying(self, t, motion="trace"):  # the first quarter of the Gaussians leave after the training span
+        g = dict(real(self, t, motion))
+        if t > self.t_max + 1e-6:
             g["means"] = g["means"].clone()
             g["means"][: len(g["means"]) // 4] += 100.0
         return g
 
-    monkeypatch.setattr(horizon, "gaussians_at", flying)
+    monkeypatch.setattr(Predictor, "gaussians_at", flying)
     rows = long_horizon(tmp_path / "run", 1.5, out=tmp_path / "h1")["per_time"]
     model = load_run(tmp_path / "run", "cpu").model
     n = len(model.gaussians["means"])

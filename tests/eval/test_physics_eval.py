@@ -1,5 +1,5 @@
 """Ground-truth physics errors against a stand-in model that moves exactly (or wrongly) by known rules
-(read by ``physics_errors`` in place of ``extrapolate.gaussians_at`` and ``handover_time``)."""
+(read by ``physics_errors`` through ``Future``, a stand-in of ``extrapolate.Predictor``)."""
 
 import json
 import math
@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 import torch
 
-from tracegs.eval import physics
 from tracegs.eval.physics import physics_errors
 from tracegs.extrapolate import ExtrapolationState
 from tracegs.physics.free_body import FreeBody
@@ -77,16 +76,30 @@ class StandIn:
         return p._replace(angular_velocity=w)
 
 
-@pytest.fixture(autouse=True)
-def stand_in_future(monkeypatch):
-    """The future that ``physics_errors`` measures: the stand-in's own rules."""
-    monkeypatch.setattr(physics, "gaussians_at", lambda model, state, t: model.gaussians_at(t, state.t_max))
-    monkeypatch.setattr(physics, "handover_time", lambda model, t_max: model.handover_time(t_max))
+class Future:
+    """The trained run that ``physics_errors`` measures (``extrapolate.Predictor``'s interface): the
+    stand-in's own rules."""
+
+    def __init__(self, model: StandIn, state: ExtrapolationState, free_bodies: bool = False):
+        self.model, self.state = model, state
+        self.settings = SimpleNamespace(free_bodies=free_bodies)
+
+    @property
+    def t_max(self) -> float:
+        return self.state.t_max
+
+    def handover_time(self) -> float:
+        return self.model.handover_time(self.state.t_max)
+
+    def gaussians_at(self, t: float) -> dict:
+        return self.model.gaussians_at(t, self.state.t_max)
 
 
 def test_exact_motion_has_zero_error(tmp_path):
     points, ids = _write_gt(tmp_path)
-    out = physics_errors(StandIn(points, ids, 2.0), ExtrapolationState(t_max=0.75), tmp_path, [0.8, 1.0])
+    out = physics_errors(
+        Future(StandIn(points, ids, 2.0), ExtrapolationState(t_max=0.75)), tmp_path, [0.8, 1.0]
+    )
     blade, body = out["parts"]["2"], out["parts"]["1"]
     assert blade["gaussians"] == 200 and body["gaussians"] == 200
     assert blade["mean_trajectory_error"] < 1e-5 and body["mean_trajectory_error"] < 1e-5
@@ -96,7 +109,7 @@ def test_exact_motion_has_zero_error(tmp_path):
 def test_errors_measure_offsets_and_wrong_spin(tmp_path):
     points, ids = _write_gt(tmp_path)
     model = StandIn(points, ids, 2.0, offset=0.05, w_learned=-1.0)
-    out = physics_errors(model, ExtrapolationState(t_max=0.75), tmp_path, [1.0])
+    out = physics_errors(Future(model, ExtrapolationState(t_max=0.75)), tmp_path, [1.0])
     blade = out["parts"]["2"]
     assert blade["mean_trajectory_error"] == pytest.approx(0.05, rel=1e-4)
     assert blade["axis_error_deg"] == pytest.approx(180.0)
@@ -106,7 +119,9 @@ def test_errors_measure_offsets_and_wrong_spin(tmp_path):
 
 def test_omega_over_span_follows_the_learned_drift(tmp_path):
     points, ids = _write_gt(tmp_path)
-    out = physics_errors(StandIn(points, ids, 2.0, droop=0.2), ExtrapolationState(t_max=0.8), tmp_path, [1.0])
+    out = physics_errors(
+        Future(StandIn(points, ids, 2.0, droop=0.2), ExtrapolationState(t_max=0.8)), tmp_path, [1.0]
+    )
     rows = out["omega_over_span"]
     assert [r["t"] for r in rows] == pytest.approx([0.2, 0.4, 0.6, 0.75, 0.8])  # incl. the handover
     for r in rows:
@@ -120,16 +135,14 @@ def test_a_free_body_s_spin_is_reported_where_it_moves_the_part(tmp_path):
     """Gaussians moved by a free body after the handover turn at its spin, not f_trd's."""
     points, ids = _write_gt(tmp_path)
     model = StandIn(points, ids, 2.0, w_learned=1.0)
-    model.cfg = SimpleNamespace(extrapolation=SimpleNamespace(free_bodies=True))
     body = FreeBody(*(torch.zeros(3, dtype=torch.float64) for _ in range(3)), torch.tensor([0.0, 0.0, 2.0]))
     labels = torch.tensor(ids == 2, dtype=torch.long)
     bodies = {"t0": 0.7, "labels": labels, "bodies": body.as_tensor()[None]}
     state = ExtrapolationState(t_max=0.75, free_bodies=bodies)
-    assert physics_errors(model, state, tmp_path, [1.0])["parts"]["2"]["omega_rel_error"] < 1e-6
-    model.cfg.extrapolation.free_bodies = False  # switched off: f_trd's spin, half the truth
-    assert physics_errors(model, state, tmp_path, [1.0])["parts"]["2"]["omega_rel_error"] == pytest.approx(
-        0.5
-    )
+    future = Future(model, state, free_bodies=True)
+    assert physics_errors(future, tmp_path, [1.0])["parts"]["2"]["omega_rel_error"] < 1e-6
+    future.settings.free_bodies = False  # switched off: f_trd's spin, half the truth
+    assert physics_errors(future, tmp_path, [1.0])["parts"]["2"]["omega_rel_error"] == pytest.approx(0.5)
 
 
 def test_a_part_touching_another_keeps_its_own_gaussians(tmp_path):
@@ -145,7 +158,9 @@ def test_a_part_touching_another_keeps_its_own_gaussians(tmp_path):
     truth = np.concatenate([flat(3000) + [0, 0, -0.005], flat(3000)])  # the plate just under the disc
     np.savez(tmp_path / "gt" / "points.npz", points=truth, part_ids=np.repeat([1, 2], 3000))
     points, ids = np.concatenate([flat(200) + [0, 0, -0.005], flat(200)]), np.repeat([1, 2], 200)
-    out = physics_errors(StandIn(points, ids, 2.0), ExtrapolationState(t_max=0.75), tmp_path, [0.8, 1.0])
+    out = physics_errors(
+        Future(StandIn(points, ids, 2.0), ExtrapolationState(t_max=0.75)), tmp_path, [0.8, 1.0]
+    )
     assert out["parts"]["2"]["gaussians"] == 200 and out["parts"]["1"]["gaussians"] == 200
     assert out["parts"]["1"]["mean_trajectory_error"] < 1e-5  # no disc Gaussian counted as the plate's
     assert out["parts"]["2"]["mean_trajectory_error"] < 1e-5

@@ -15,12 +15,11 @@ from torch import nn
 
 from tracegs.config import make_config
 from tracegs.data.cameras import Camera, look_at_viewmat
-from tracegs.export.command import export_run, gaussians_for_export, parse_times
+from tracegs.export.command import export_run, parse_times
 from tracegs.export.palette import colours
 from tracegs.export.ply import read_gaussians, write_gaussians
-from tracegs.export.render import render_at, render_gaussians
 from tracegs.export.splat import SPLAT_DTYPE, read_splat, write_splat
-from tracegs.extrapolate import ExtrapolationState, gaussians_at
+from tracegs.extrapolate import ExtrapolationState, Predictor
 from tracegs.models.gaussians import SH_C0
 from tracegs.run import RunError, load_run, save_tensors
 from tracegs.train.trainer import Trainer
@@ -43,9 +42,11 @@ def with_gaussians(model, params: dict[str, torch.Tensor]):
 
 def test_a_predicted_time_reloads_to_the_same_gaussians_and_the_same_image(tmp_path):
     model = randomised_model(make_config("tiny", device="cpu", bf16=False))
-    state, t = ExtrapolationState(t_max=0.5), 1.2  # past the training span: the learned physics
-    params = gaussians_for_export(model, state, t)
-    expected = gaussians_at(model, state, t)
+    t = 1.2  # past the training span: the learned physics
+    background = torch.tensor([1.0, 1.0, 1.0])
+    predictor = Predictor(model, ExtrapolationState(t_max=0.5), background=background)
+    params = predictor.parameters_at(t)
+    expected = predictor.gaussians_at(t)
     assert (expected["means"] - model.gaussians["means"]).abs().max() > 1e-3  # the fields do move them
     back = read_gaussians(write_gaussians(params, tmp_path / "g.ply"))
     for name in ("means", "quats", "scales"):
@@ -55,9 +56,9 @@ def test_a_predicted_time_reloads_to_the_same_gaussians_and_the_same_image(tmp_p
     camera = Camera(
         look_at_viewmat((2.5, 1.0, 1.5)), torch.tensor([[40.0, 0, 16], [0, 40, 16], [0, 0, 1]]), 32, 32
     )
-    background = torch.tensor([1.0, 1.0, 1.0])
-    original = render_at(model, state, t, camera, background)
-    rendered = render_gaussians(with_gaussians(model, back), back, camera, background)
+    original = predictor.render(camera, t)
+    reloaded = Predictor(with_gaussians(model, back), predictor.state, background=background)
+    rendered = reloaded.render(camera, gaussians=back)
     assert original.std() > 0.01 and torch.equal(rendered, original)
 
 
@@ -144,7 +145,7 @@ def test_one_time_in_both_formats_is_the_run_at_that_time(run, tmp_path):
     assert report["predicted"] == [t > loaded.state.t_max] == [True]
     back = read_gaussians(tmp_path / "out.ply")
     assert report["gaussians"] == len(back["means"]) == len(loaded.model.gaussians["means"])
-    expected = gaussians_at(loaded.model, loaded.state, t)
+    expected = loaded.predictor.gaussians_at(t)
     assert torch.equal(back["means"], expected["means"]) and torch.equal(back["quats"], expected["quats"])
     assert (tmp_path / "out.splat").stat().st_size == 32 * report["gaussians"]
     default = export_run(run, time=0.5, device="cpu", fmt="splat")
@@ -167,7 +168,7 @@ def test_a_sequence_is_numbered_with_its_times_and_predicted_frames(run, tmp_pat
     assert index["t_max"] == pytest.approx(t_max) and 0.5 < t_max < 1.0
     assert index["predicted"] == report["predicted"] == [False, False, True, True]
     for name, t in zip(names, index["times"], strict=True):
-        expected = gaussians_at(loaded.model, loaded.state, t)["means"]
+        expected = loaded.predictor.gaussians_at(t)["means"]
         assert torch.equal(read_gaussians(tmp_path / "seq" / name)["means"], expected)
     default = export_run(run, times="0:0.2:0.1", fmt="both", device="cpu", progress=False)
     folder = run / "export" / "sequence"

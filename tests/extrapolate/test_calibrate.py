@@ -7,7 +7,7 @@ from tests.conftest import write_tiny_scene
 
 from tracegs.config import make_config
 from tracegs.data.scene import load_scene
-from tracegs.extrapolate import ExtrapolationState, gaussians_at
+from tracegs.extrapolate import ExtrapolationState, Predictor
 from tracegs.extrapolate.calibrate import FREEZE_FRACTIONS, choose_freeze_threshold
 from tracegs.train.trainer import Trainer
 
@@ -24,7 +24,7 @@ def _setup(tmp_path, drift: float):
     # the training images become renders of the canonical (unmoving) Gaussians
     data = load_scene(scene, "train")
     background = torch.tensor(data.background)
-    state = gaussians_at(model, ExtrapolationState(t_max=trainer.t_max), 0.0)
+    state = Predictor(model, ExtrapolationState(t_max=trainer.t_max)).gaussians_at(0.0)
     with torch.no_grad():
         for f in data.frames:
             rgb = model.render(state, f.camera, cfg.sh_degree, background).image.clamp(0, 1)
@@ -36,7 +36,8 @@ def _setup(tmp_path, drift: float):
 def test_static_scene_with_drifting_dynamics_is_frozen(tmp_path):
     trainer, scene = _setup(tmp_path, drift=2.0)
     state = ExtrapolationState(t_max=trainer.t_max)
-    threshold, scores = choose_freeze_threshold(trainer.model, state, scene, 1, trainer.t_max, trainer.extent)
+    predictor = Predictor(trainer.model, state, trainer.cfg.extrapolation)
+    threshold, scores = choose_freeze_threshold(predictor, scene, 1, trainer.t_max, trainer.extent)
     assert len(scores) == len(FREEZE_FRACTIONS)
     assert threshold > 0
     assert scores[threshold] > scores[0.0] + 5.0
@@ -46,5 +47,6 @@ def test_static_scene_with_drifting_dynamics_is_frozen(tmp_path):
 def test_without_drift_nothing_needs_freezing(tmp_path):
     trainer, scene = _setup(tmp_path, drift=0.0)
     state = ExtrapolationState(t_max=trainer.t_max)
-    threshold, scores = choose_freeze_threshold(trainer.model, state, scene, 1, trainer.t_max, trainer.extent)
+    predictor = Predictor(trainer.model, state, trainer.cfg.extrapolation)
+    threshold, scores = choose_freeze_threshold(predictor, scene, 1, trainer.t_max, trainer.extent)
     assert threshold == 0.0  # every candidate renders the same images: ties go to the smallest

@@ -10,7 +10,7 @@ from tests.conftest import write_tiny_scene
 
 from tracegs.config import make_config
 from tracegs.data.scene import load_scene
-from tracegs.extrapolate import ExtrapolationState, gaussians_at, handover_time, physics_from
+from tracegs.extrapolate import ExtrapolationState, Predictor
 from tracegs.extrapolate.free_bodies import choose_free_bodies, legendre_to_path
 from tracegs.extrapolate.state import STATE_VERSION
 from tracegs.physics.free_body import FreeBody, move
@@ -25,7 +25,7 @@ def _setup(tmp_path, stop_at: float | None, gap: float, bend: torch.Tensor | Non
     model: the still blob at its place, the other carried along the parabola ``V t + A t^2 / 2``
     (until ``stop_at``, where the images' blob stops; f_defo follows the parabola throughout, bent by
     ``bend (t - t0)^2 / 2`` away from it about the handover t0 when given). f_trd is zero: its physics
-    holds the blob still. Returns the trainer, the model, its post-training state so far (no freeze
+    holds the blob still. Returns the trainer, the model, its predictor with the state so far (no freeze
     threshold, no unseen Gaussians), the moving blob's rows and the scene."""
     scene = write_tiny_scene(tmp_path / "scene", n_times=17, size=32)
     cfg = make_config("tiny", data=scene, run=tmp_path / "run", device="cpu")
@@ -37,6 +37,7 @@ def _setup(tmp_path, stop_at: float | None, gap: float, bend: torch.Tensor | Non
     trainer = Trainer(cfg, progress=False)
     model = trainer.model
     state = ExtrapolationState(t_max=trainer.t_max, freeze_threshold=0.0)
+    predictor = Predictor(model, state, cfg.extrapolation)
     g = model.gaussians
     n = g["means"].shape[0]
     part = torch.arange(n) < n // 2
@@ -46,7 +47,7 @@ def _setup(tmp_path, stop_at: float | None, gap: float, bend: torch.Tensor | Non
         g["opacities"].fill_(2.0)
         g["scales"].fill_(-3.5)
 
-    t0 = handover_time(model, trainer.t_max)
+    t0 = predictor.handover_time()
 
     def deform(t: float, stop: float | None = None, bent: bool = True) -> dict[str, torch.Tensor]:
         s = t if stop is None else min(t, stop)
@@ -66,59 +67,56 @@ def _setup(tmp_path, stop_at: float | None, gap: float, bend: torch.Tensor | Non
             rgba = np.concatenate([(rgb.numpy() * 255).round(), np.full((*rgb.shape[:2], 1), 255)], -1)
             iio.imwrite(f.image_path, rgba.astype(np.uint8))
     model.deform = deform  # f_defo as the parabola, exactly
-    return trainer, model, state, part, scene
+    return trainer, model, predictor, part, scene
 
 
 @pytest.mark.parametrize("stop_at, gap", [(None, 0.8), (0.375, 0.8), (None, 0.1)])
 def test_free_body_is_chosen_for_a_part_in_flight_that_the_images_follow(tmp_path, stop_at, gap):
-    trainer, model, state, part, scene = _setup(tmp_path, stop_at, gap)
-    chosen, report = choose_free_bodies(model, state, scene, 1, trainer.t_max, trainer.extent)
+    trainer, model, predictor, part, scene = _setup(tmp_path, stop_at, gap)
+    chosen, report = choose_free_bodies(predictor, scene, 1, trainer.extent)
     assert len(report) == 1 and report[0]["gaussians"] == int(part.sum())  # the moving blob, found whole
     if gap < 0.2:  # touching the still blob: never a free body, and no backtest
-        assert report[0]["isolation"] < model.cfg.extrapolation.free_body_isolation
+        assert report[0]["isolation"] < predictor.settings.free_body_isolation
         assert "mse_free_body" not in report[0] and not chosen["labels"].any()
         return
-    assert report[0]["isolation"] > model.cfg.extrapolation.free_body_isolation
+    assert report[0]["isolation"] > predictor.settings.free_body_isolation
     if stop_at is not None:  # the images stop where the backtest starts, as f_trd's physics does
-        assert (
-            report[0]["mse_free_body"]
-            > model.cfg.extrapolation.free_body_tolerance * report[0]["mse_learned"]
-        )
+        assert report[0]["mse_free_body"] > predictor.settings.free_body_tolerance * report[0]["mse_learned"]
         assert len(chosen["bodies"]) == 0 and not chosen["labels"].any()
         return
     assert report[0]["mse_free_body"] < 0.5 * report[0]["mse_learned"]
     assert torch.equal(chosen["labels"] > 0, part)
-    t0 = handover_time(model, trainer.t_max)
+    t0 = predictor.handover_time()
     body = FreeBody.from_tensor(chosen["bodies"][0])
     torch.testing.assert_close(body.a, A.double(), rtol=0, atol=1e-4)
     torch.testing.assert_close(body.v, (V + A * t0).double(), rtol=0, atol=1e-4)
     torch.testing.assert_close(body.w, torch.zeros(3, dtype=torch.float64), rtol=0, atol=1e-6)
 
     # the model moves the part as that body after the handover, the rest by the learned physics
-    state.free_bodies = chosen
+    predictor.state.free_bodies = chosen
     t = trainer.t_max + 0.3
-    gaussians = gaussians_at(model, state, t)
+    gaussians = predictor.gaussians_at(t)
     start = model.deform(t0)
     want, _ = move(start["means"][part], start["quats"][part], body, t - t0)
     torch.testing.assert_close(gaussians["means"][part], want)
     torch.testing.assert_close(gaussians["means"][part], model.deform(t)["means"][part], rtol=0, atol=1e-4)
-    learned = physics_from(model, state, t0, t)
+    learned = predictor.physics_from(t0, t)
     torch.testing.assert_close(gaussians["means"][~part], learned["means"][~part])
-    model.cfg.extrapolation.free_bodies = False  # switched off: the learned physics everywhere
-    torch.testing.assert_close(gaussians_at(model, state, t)["means"], learned["means"])
+    predictor.settings.free_bodies = False  # switched off: the learned physics everywhere
+    torch.testing.assert_close(predictor.gaussians_at(t)["means"], learned["means"])
 
 
 def test_free_body_is_fitted_to_the_images_where_f_defo_is_off(tmp_path):
     """f_defo's parabola bends away from the images' before and after the handover (an acceleration
     off by 1.8); the fit to f_defo's centroid takes its path, the refinement on the images comes back
     to the truth."""
-    trainer, model, state, part, scene = _setup(tmp_path, None, 0.8, bend=torch.tensor([1.5, 0.0, 1.0]))
-    t0 = handover_time(model, trainer.t_max)
+    trainer, model, predictor, part, scene = _setup(tmp_path, None, 0.8, bend=torch.tensor([1.5, 0.0, 1.0]))
+    t0 = predictor.handover_time()
     centre = model.gaussians["means"][part].detach().double().mean(0)
     errors, acceleration_errors = {}, {}
     for steps in (0, 60, 150):
-        model.cfg.extrapolation.free_body_refine_steps = steps
-        chosen, _ = choose_free_bodies(model, state, scene, 1, trainer.t_max, trainer.extent)
+        predictor.settings.free_body_refine_steps = steps
+        chosen, _ = choose_free_bodies(predictor, scene, 1, trainer.extent)
         assert torch.equal(chosen["labels"] > 0, part)
         body = FreeBody.from_tensor(chosen["bodies"][0])
         acceleration_errors[steps] = float((body.a - A.double()).norm() / A.norm())

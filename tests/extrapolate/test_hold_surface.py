@@ -8,7 +8,7 @@ import torch
 from tests.conftest import randomised_model
 
 from tracegs.config import make_config
-from tracegs.extrapolate import ExtrapolationState, gaussians_at, handover_time
+from tracegs.extrapolate import ExtrapolationState, Predictor
 from tracegs.physics.integrate import DynamicsParams, num_substeps
 
 T_MAX = 0.75
@@ -38,7 +38,7 @@ def _scene():
 
 def _controlled_model(fraction: float, painters: str = "edge"):
     """The model of ``_scene`` with ``extrapolation.surface_still_fraction = fraction`` (0: ``hold_surface``
-    off) and ``surface_painters = painters``, and its post-training state."""
+    off) and ``surface_painters = painters``, and its predictor."""
     torch.manual_seed(0)
     points, defo, phys, n_plane = _scene()
     cfg = make_config("tiny", device="cpu", bf16=False)
@@ -61,7 +61,7 @@ def _controlled_model(fraction: float, painters: str = "edge"):
         return DynamicsParams(phys.clone(), zero, zero, zero)
 
     model.deform, model.query_dynamics = deform, query_dynamics
-    return model, state, points[:n_plane], phys
+    return model, Predictor(model, state, cfg.extrapolation), points[:n_plane], phys
 
 
 def _distance(point, plane):
@@ -70,11 +70,11 @@ def _distance(point, plane):
 
 @pytest.mark.parametrize("t", [1.2, 2.0])
 def test_a_painter_stops_where_it_would_leave_its_surface(t):
-    model, state, plane, phys = _controlled_model(0.75)
-    t0 = handover_time(model, T_MAX)
+    model, predictor, plane, phys = _controlled_model(0.75)
+    t0 = predictor.handover_time()
     start = model.deform(t0)["means"]
     with torch.no_grad():
-        means = gaussians_at(model, state, t)["means"]
+        means = predictor.gaussians_at(t)["means"]
     n = len(plane)
     torch.testing.assert_close(means[:n], start[:n], rtol=0, atol=0)  # the plane, frozen
     carried = start + (t - t0) * phys
@@ -93,11 +93,11 @@ def test_a_painter_stops_where_it_would_leave_its_surface(t):
 
 @pytest.mark.parametrize("t", [1.2, 2.0])
 def test_held_painters_keep_their_handover_state(t):
-    model, state, plane, phys = _controlled_model(0.75, painters="hold")
-    t0 = handover_time(model, T_MAX)
+    model, predictor, plane, phys = _controlled_model(0.75, painters="hold")
+    t0 = predictor.handover_time()
     start = model.deform(t0)
     with torch.no_grad():
-        now = gaussians_at(model, state, t)
+        now = predictor.gaussians_at(t)
     n = len(plane)
     torch.testing.assert_close(now["means"][:n], start["means"][:n], rtol=0, atol=0)  # the plane, frozen
     carried = start["means"] + (t - t0) * phys
@@ -107,27 +107,27 @@ def test_held_painters_keep_their_handover_state(t):
 
 
 def test_the_stop_is_the_same_for_every_later_time():
-    model, state, plane, _ = _controlled_model(0.75)
+    model, predictor, plane, _ = _controlled_model(0.75)
     with torch.no_grad():
-        late = [gaussians_at(model, state, t)["means"][-2] for t in (1.5, 2.5)]
+        late = [predictor.gaussians_at(t)["means"][-2] for t in (1.5, 2.5)]
     torch.testing.assert_close(late[0], late[1], rtol=0, atol=1e-5)
 
 
 def test_off_the_physics_carries_every_painter():
-    model, state, plane, phys = _controlled_model(0.0)
-    t0 = handover_time(model, T_MAX)
+    model, predictor, plane, phys = _controlled_model(0.0)
+    t0 = predictor.handover_time()
     start = model.deform(t0)["means"]
     with torch.no_grad():
-        means = gaussians_at(model, state, 1.2)["means"]
+        means = predictor.gaussians_at(1.2)["means"]
     n = len(plane)
     torch.testing.assert_close(means[n:], (start + (1.2 - t0) * phys)[n:], rtol=0, atol=1e-5)
 
 
 def test_without_still_gaussians_nothing_stops():
-    model, state, plane, phys = _controlled_model(0.5)
-    state.freeze_threshold = 0.0  # nobody frozen: the plane "moves" with zero velocity
-    t0 = handover_time(model, T_MAX)
+    model, predictor, plane, phys = _controlled_model(0.5)
+    predictor.state.freeze_threshold = 0.0  # nobody frozen: the plane "moves" with zero velocity
+    t0 = predictor.handover_time()
     start = model.deform(t0)["means"]
     with torch.no_grad():
-        means = gaussians_at(model, state, 1.2)["means"]
+        means = predictor.gaussians_at(1.2)["means"]
     torch.testing.assert_close(means, start + (1.2 - t0) * phys, rtol=0, atol=1e-5)

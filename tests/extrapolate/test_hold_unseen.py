@@ -8,7 +8,7 @@ import torch
 from tests.conftest import randomised_model, write_tiny_scene
 
 from tracegs.config import make_config
-from tracegs.extrapolate import ExtrapolationState, gaussians_at, handover_time
+from tracegs.extrapolate import ExtrapolationState, Predictor
 from tracegs.extrapolate.calibrate import unseen_gaussians
 from tracegs.physics.integrate import DynamicsParams
 from tracegs.run import EXTRAPOLATION, load_extrapolation, load_run, load_tensors
@@ -23,7 +23,7 @@ def _controlled_model(hold: float, n: int = 30):
     still by f_defo (under a surface); unseen and moved by f_defo with V (inside a moving object).
     f_trd gives every Gaussian V as its equivalent velocity, with no rotation or acceleration.
     ``hold``: ``extrapolation.unseen_speed_ratio``, 0 = ``hold_unseen`` off. Returns the model, its
-    post-training state (the unseen Gaussians), their positions at the handover and their groups."""
+    predictor (its state: the unseen Gaussians), their positions at the handover and their groups."""
     cfg = make_config("tiny", device="cpu", bf16=False)
     cfg.extrapolation.hold_unseen = hold > 0
     if hold > 0:
@@ -43,16 +43,17 @@ def _controlled_model(hold: float, n: int = 30):
         return DynamicsParams(V.expand_as(means).clone(), zero, zero, zero)
 
     model.deform, model.query_dynamics = deform, query_dynamics
-    return model, state, canonical + handover_time(model, T_MAX) * velocity, group
+    predictor = Predictor(model, state, cfg.extrapolation)
+    return model, predictor, canonical + predictor.handover_time() * velocity, group
 
 
 @pytest.mark.parametrize("hold", [3.0, 0.0])
 def test_only_unseen_gaussians_the_fields_disagree_on_are_held(hold):
-    model, state, handover, group = _controlled_model(hold)
+    model, predictor, handover, group = _controlled_model(hold)
     t = 1.3
     with torch.no_grad():
-        means = gaussians_at(model, state, t)["means"]
-    carried = handover + (t - handover_time(model, T_MAX)) * V  # x(t0) + V (t - t0)
+        means = predictor.gaussians_at(t)["means"]
+    carried = handover + (t - predictor.handover_time()) * V  # x(t0) + V (t - t0)
     held = (group == 1) if hold > 0 else torch.zeros_like(group, dtype=torch.bool)
     torch.testing.assert_close(means[~held], carried[~held], rtol=0, atol=1e-5)
     torch.testing.assert_close(means[held], handover[held], rtol=0, atol=0)
@@ -61,16 +62,14 @@ def test_only_unseen_gaussians_the_fields_disagree_on_are_held(hold):
 def test_a_slow_unseen_drift_within_the_floor_moves_on():
     """f_trd's speed below 3 x the floor (0.05 scene units per unit of time) is not held, even where
     f_defo kept the Gaussian still."""
-    model, state, handover, group = _controlled_model(3.0)
+    model, predictor, handover, group = _controlled_model(3.0)
     slow = torch.tensor([0.1, 0.0, 0.0])
     model.query_dynamics = lambda means, t: DynamicsParams(
         slow.expand_as(means).clone(), *(torch.zeros_like(means) for _ in range(3))
     )
     with torch.no_grad():
-        means = gaussians_at(model, state, 1.0)["means"]
-    torch.testing.assert_close(
-        means, handover + (1.0 - handover_time(model, T_MAX)) * slow, rtol=0, atol=1e-5
-    )
+        means = predictor.gaussians_at(1.0)["means"]
+    torch.testing.assert_close(means, handover + (1.0 - predictor.handover_time()) * slow, rtol=0, atol=1e-5)
 
 
 def test_unseen_gaussians_are_those_no_training_image_shows(tmp_path):
@@ -111,16 +110,16 @@ def test_still_codes_say_why_each_gaussian_holds_still_the_first_reason_winning(
     overrides that reason for those rows, and the Gaussians that move keep MOVES."""
     from tracegs.extrapolate.still import MOVES, STATIC, UNSEEN, still_codes
 
-    model, state, handover, group = _controlled_model(3.0)
-    t0 = handover_time(model, T_MAX)
+    model, predictor, handover, group = _controlled_model(3.0)
+    t0 = predictor.handover_time()
     params = model.query_dynamics(handover, t0)
-    codes = still_codes(model, state, t0, handover, params)
+    codes = still_codes(predictor, t0, handover, params)
     assert codes.dtype == torch.uint8
     assert (codes[group == 1] == UNSEEN).all() and (codes[group != 1] == MOVES).all()
     static = torch.zeros(len(group), dtype=torch.bool)
     static[:5], static[10:12] = True, True  # shown ones and two of the unseen ones
     model.set_static_mask(static)
-    codes = still_codes(model, state, t0, handover, params)
+    codes = still_codes(predictor, t0, handover, params)
     assert (codes[static] == STATIC).all()
     assert (codes[(group == 1) & ~static] == UNSEEN).all()
     assert (codes[(group != 1) & ~static] == MOVES).all()

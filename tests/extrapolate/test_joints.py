@@ -11,7 +11,7 @@ import torch
 from tests.conftest import about, blob_model
 
 from tracegs.config import make_config
-from tracegs.extrapolate import ExtrapolationState, calibrate, gaussians_at, handover_time
+from tracegs.extrapolate import ExtrapolationState, Predictor, calibrate
 from tracegs.physics.force_law import LAWS, integrate
 from tracegs.physics.so3 import rodrigues
 
@@ -32,15 +32,16 @@ def steady_turn(t: np.ndarray) -> np.ndarray:
 
 def _model(angle, joint_laws: bool = True):
     """A blob 0.5 below the hinge turned about it by ``angle(t)``, and one far from it held still.
-    Returns the model and the turning part's rows."""
+    Returns the model, its extrapolation settings and the turning part's rows."""
     turning = lambda t: about(float(angle(np.array([t]))[0]), PIVOT)  # noqa: E731
-    model, rows = blob_model([(0.0, 0.1, 0.0), (0.0, -0.8, 0.0)], [turning, None], joint_laws)
-    return model, rows[0]
+    model, settings, rows = blob_model([(0.0, 0.1, 0.0), (0.0, -0.8, 0.0)], [turning, None], joint_laws)
+    return model, settings, rows[0]
 
 
 def test_a_damped_pendulum_is_put_on_its_hinge_and_swings_on():
-    model, part = _model(damped_pendulum)
-    state = calibrate(model, T_MAX, extent=2.0)
+    model, settings, part = _model(damped_pendulum)
+    predictor = calibrate(model, T_MAX, settings, extent=2.0)
+    state = predictor.state
     (entry,) = state.report["joint_laws"]
     assert entry["adopted"] and entry["joint"] == "hinge" and entry["gaussians"] == int(part.sum())
     assert entry["law"] in ("spring_damper", "pendulum")
@@ -54,24 +55,25 @@ def test_a_damped_pendulum_is_put_on_its_hinge_and_swings_on():
         offset - (offset @ AXIS) * AXIS, torch.zeros(3, dtype=torch.float64), atol=1e-5, rtol=0
     )
 
-    t0 = handover_time(model, T_MAX)
+    t0 = predictor.handover_time()
     size = float(
         (model.deform(t0)["means"][part] - model.deform(t0)["means"][part].mean(0)).norm(dim=1).max()
     )
     for t in (t0 + 0.01, T_MAX, 1.0, 1.25):  # after the handover: the truth's swing
-        got, want = gaussians_at(model, state, t), model.deform(t)
+        got, want = predictor.gaussians_at(t), model.deform(t)
         error = float((got["means"][part] - want["means"][part]).norm(dim=1).max())
         assert error < 0.01 * size, (t, error, size)
         torch.testing.assert_close(got["quats"][part], want["quats"][part], atol=2e-3, rtol=0)
         torch.testing.assert_close(got["means"][~part], model.deform(t0)["means"][~part])  # still
     # without the law, the learned physics (zero here) leaves the part where the handover put it
-    model.cfg.extrapolation.joint_laws = False
-    torch.testing.assert_close(gaussians_at(model, state, 1.0)["means"], model.deform(t0)["means"])
+    predictor.settings.joint_laws = False
+    torch.testing.assert_close(predictor.gaussians_at(1.0)["means"], model.deform(t0)["means"])
 
 
 def test_a_part_turning_steadily_keeps_the_learned_physics():
-    model, part = _model(steady_turn)
-    state = calibrate(model, T_MAX, extent=2.0)
+    model, settings, part = _model(steady_turn)
+    predictor = calibrate(model, T_MAX, settings, extent=2.0)
+    state = predictor.state
     (entry,) = state.report["joint_laws"]
     assert entry["joint"] == "hinge" and entry["law"] == "constant" and not entry["adopted"]
     assert "constant" in entry["why"]
@@ -79,15 +81,18 @@ def test_a_part_turning_steadily_keeps_the_learned_physics():
 
 
 def test_the_joint_parts_round_trip_through_the_saved_state():
-    model, part = _model(damped_pendulum)
-    state = calibrate(model, T_MAX, extent=2.0)
+    model, settings, part = _model(damped_pendulum)
+    predictor = calibrate(model, T_MAX, settings, extent=2.0)
+    state = predictor.state
     buffer = io.BytesIO()
     torch.save(state.to_dict(), buffer)
     buffer.seek(0)
     again = ExtrapolationState.from_dict(torch.load(buffer, weights_only=True))
     assert again.joint_laws["parts"][0]["law"] == state.joint_laws["parts"][0]["law"]
     for t in (T_MAX, 1.2):
-        assert torch.equal(gaussians_at(model, again, t)["means"], gaussians_at(model, state, t)["means"])
+        assert torch.equal(
+            Predictor(model, again, settings).gaussians_at(t)["means"], predictor.gaussians_at(t)["means"]
+        )
     old = {k: v for k, v in state.to_dict().items() if k != "joint_laws"} | {"version": 1}
     assert ExtrapolationState.from_dict(old).joint_laws is None  # written before joint laws: none
     with pytest.raises(ValueError, match="version"):
@@ -97,14 +102,15 @@ def test_the_joint_parts_round_trip_through_the_saved_state():
 def test_off_nothing_changes():
     """``joint_laws = False``: calibrate looks for none, and a state that holds some renders as the
     same state without them, bit for bit."""
-    model, part = _model(damped_pendulum, joint_laws=False)
-    state = calibrate(model, T_MAX, extent=2.0)
+    model, settings, part = _model(damped_pendulum, joint_laws=False)
+    predictor = calibrate(model, T_MAX, settings, extent=2.0)
+    state = predictor.state
     assert state.joint_laws is None and "joint_laws" not in state.report
-    model.cfg.extrapolation.joint_laws = True
-    with_laws = calibrate(model, T_MAX, extent=2.0)
-    model.cfg.extrapolation.joint_laws = False
+    predictor.settings.joint_laws = True
+    with_laws = calibrate(model, T_MAX, settings, extent=2.0)
+    predictor.settings.joint_laws = False
     for t in (0.3, T_MAX, 1.2):
-        a, b = gaussians_at(model, with_laws, t), gaussians_at(model, state, t)
+        a, b = with_laws.gaussians_at(t), predictor.gaussians_at(t)
         assert all(torch.equal(a[k], b[k]) for k in ("means", "quats", "scales"))
 
 
@@ -151,10 +157,11 @@ def test_a_part_spinning_on_a_turning_part_turns_on_its_joint_in_that_parts_fram
         return table[0] @ own, table[0] @ own_shift + table[1]
 
     motions = [lambda t: about(2.0 * t, PIVOT), box, None]
-    model, (table, spinning, still) = blob_model(
+    model, settings, (table, spinning, still) = blob_model(
         [(0.0, 0.1, 0.0), tuple(centre.tolist()), (0.0, -0.8, 0.0)], motions
     )
-    state = calibrate(model, T_MAX, extent=2.0)
+    predictor = calibrate(model, T_MAX, settings, extent=2.0)
+    state = predictor.state
     by_rows = {e["gaussians"]: e for e in state.report["joint_laws"]}
     assert len(by_rows) == 2
     disc, part = by_rows[int(table.sum())], by_rows[int(spinning.sum())]
@@ -162,10 +169,10 @@ def test_a_part_spinning_on_a_turning_part_turns_on_its_joint_in_that_parts_fram
     assert part["adopted"] and part["on"] == 1 and part["joint"] == "hinge" and part["law"] == "constant"
     assert part["position_rms"]["law"] < 0.01 * part["position_rms"]["learned"]
     assert torch.equal(state.joint_laws["labels"], spinning.long() * 2)
-    t0 = handover_time(model, T_MAX)
+    t0 = predictor.handover_time()
     start = model.deform(t0)["means"]
     for t in (T_MAX, 1.0, 1.25):
-        got, want = gaussians_at(model, state, t), model.deform(t)
+        got, want = predictor.gaussians_at(t), model.deform(t)
         error = float((got["means"][spinning] - want["means"][spinning]).norm(dim=1).max())
         assert error < 2e-3, (t, error)
         alike = (got["quats"][spinning] * torch.nn.functional.normalize(want["quats"][spinning], dim=1)).sum(

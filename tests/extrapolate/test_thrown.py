@@ -7,7 +7,7 @@ import numpy as np
 import torch
 from tests.conftest import blob_model
 
-from tracegs.extrapolate import calibrate, gaussians_at, handover_time
+from tracegs.extrapolate import calibrate
 from tracegs.extrapolate.thrown import fit_thrown
 from tracegs.physics.force_law import LAWS, integrate
 from tracegs.physics.free_body import centre_of_mass, main_piece
@@ -66,23 +66,24 @@ def test_fit_thrown_recovers_the_bounce_the_drift_and_the_spin():
 
 def test_a_bouncing_ball_bounces_on_after_the_handover():
     centre = {}  # a body turns about its centre of mass: the centroid of the blob's hull, not its mean
-    model, (thrown, floor) = blob_model(
+    model, settings, (thrown, floor) = blob_model(
         [tuple(START.tolist()), (0.0, 0.0, -0.8)], [lambda t: ball(t, centre["c"]), None]
     )
     blob = model.gaussians["means"][thrown].detach()
     centre["c"] = centre_of_mass(blob[main_piece(blob)])
     t_max = 0.75
-    state = calibrate(model, t_max, extent=2.0)
+    predictor = calibrate(model, t_max, settings, extent=2.0)
+    state = predictor.state
     entry = next(e for e in state.report["joint_laws"] if e.get("model") == "thrown")
     assert entry["adopted"] and entry["law"] == "bounce", entry
     assert abs(entry["constants"]["e"] - E) < 0.02 and abs(entry["constants"]["g"] - G) < 0.02 * G
     assert torch.equal(state.joint_laws["labels"] > 0, thrown)
-    start = model.deform(handover_time(model, t_max))["means"]
+    start = model.deform(predictor.handover_time())["means"]
     for t in (0.9, 1.0, 1.3):  # past contacts at 0.76, 0.91 and 1.02, after the handover at 0.55
-        got, want = gaussians_at(model, state, t)["means"], model.deform(t)["means"]
+        got, want = predictor.gaussians_at(t)["means"], model.deform(t)["means"]
         error = float((got[thrown] - want[thrown]).norm(dim=1).max())
         assert error < 0.01, (t, error)
         torch.testing.assert_close(got[floor], start[floor])
     # off, the learned physics (zero here) leaves the ball where the handover put it
-    model.cfg.extrapolation.joint_laws = False
-    torch.testing.assert_close(gaussians_at(model, state, 1.0)["means"], start)
+    predictor.settings.joint_laws = False
+    torch.testing.assert_close(predictor.gaussians_at(1.0)["means"], start)

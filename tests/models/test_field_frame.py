@@ -12,7 +12,7 @@ from tests.conftest import randomised_model, write_tiny_scene
 
 from tracegs.config import apply_overrides, make_config
 from tracegs.data.dataset import ViewDataset
-from tracegs.extrapolate import ExtrapolationState, gaussians_at
+from tracegs.extrapolate import ExtrapolationState, Predictor
 from tracegs.models.trace import TraceModel
 from tracegs.run import load_run
 from tracegs.train.scene_frame import field_frame
@@ -45,11 +45,11 @@ def test_a_moved_and_scaled_scene_moves_the_same(switch):
     moved = _moved_copy(model)
     for m in (model, moved):
         m.begin_dynamic_stage()  # the HexPlane boxes the canonical Gaussians (in the fields' frame)
-    state = ExtrapolationState(t_max=0.75)
+    predictor, other = (Predictor(m, ExtrapolationState(t_max=0.75)) for m in (model, moved))
     with torch.no_grad():
         pairs = {
-            "f_defo": (gaussians_at(model, state, 0.3), gaussians_at(moved, state, 0.3)),
-            "extrapolated": (gaussians_at(model, state, 1.4), gaussians_at(moved, state, 1.4)),
+            "f_defo": (predictor.gaussians_at(0.3), other.gaussians_at(0.3)),
+            "extrapolated": (predictor.gaussians_at(1.4), other.gaussians_at(1.4)),
             "training": (model.training_state(0.4, 0.45)[0], moved.training_state(0.4, 0.45)[0]),
         }
     for name, (a, b) in pairs.items():
@@ -99,7 +99,7 @@ def test_a_run_keeps_its_frame_and_older_checkpoints_load_in_the_world_frame(tmp
     model = loaded.model
     torch.testing.assert_close(model.field_center, trainer.model.field_center)
     assert float(model.field_scale) == float(trainer.model.field_scale) > 1
-    assert torch.isfinite(gaussians_at(model, loaded.state, 1.3)["means"]).all()
+    assert torch.isfinite(loaded.predictor.gaussians_at(1.3)["means"]).all()
     ckpt = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)
     for key in ("field_center", "field_scale"):  # as written before the fields had a frame
         del ckpt["model"][key]

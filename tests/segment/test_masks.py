@@ -14,8 +14,9 @@ import torch
 from tracegs.data.frames import DatasetError
 from tracegs.data.scene import load_scene
 from tracegs.data.synth import part_transforms, synthesize
+from tracegs.extrapolate import ExtrapolationState, Predictor
 from tracegs.models.trace import TraceModel
-from tracegs.segment.masks import colour_image, colours, overlay, render_labels
+from tracegs.segment.masks import colour_image, colours, overlay
 from tracegs.segment.truth import find_ground_truth, merged_parts
 
 
@@ -46,7 +47,9 @@ def stand_in_model(n: int, near: float = 0.01) -> SimpleNamespace:
     """A stand-in for a trained model of ``n`` Gaussians (opacity 0.5) with ``TraceModel.render``, the
     near plane ``near`` and the default backend."""
     gaussians = {"opacities": torch.zeros(n), "sh0": torch.zeros(n, 1, 3), "shN": torch.zeros(n, 0, 3)}
-    model = SimpleNamespace(gaussians=gaussians, cfg=SimpleNamespace(backend="auto"), _near=near)
+    model = SimpleNamespace(
+        gaussians=gaussians, cfg=SimpleNamespace(backend="auto"), backend="auto", _near=near
+    )
     model.render = MethodType(TraceModel.render, model)
     return model
 
@@ -176,3 +179,11 @@ def test_masks_of_a_downscaled_run_are_sampled_down(slider):
     big, small = truth.read(full), truth.read(half)
     assert small.shape == (full.height // 2, full.width // 2)
     assert (small == big[1::2, 1::2]).all()
+
+
+def render_labels(model, gaussians: dict, labels: torch.Tensor, k: int, camera):
+    """The label image and confidence of ``gaussians`` with ``labels``, as the trained run of ``model``
+    renders them (``Predictor.render_labels``)."""
+    return Predictor(model, ExtrapolationState(t_max=1.0)).render_labels(
+        camera, labels, k, gaussians=gaussians
+    )

@@ -16,14 +16,11 @@ import torch
 from tests.conftest import write_tiny_scene
 from tracegs.data.cameras import look_at_viewmat
 from tracegs.data.scene import load_scene
-from tracegs.export.render import render_gaussians
-from tracegs.extrapolate import gaussians_at
-from tracegs.extrapolate.future import handover_time
 from tracegs.run import RunError, load_run, save_tensors
 from tracegs.segment.command import labels_file
-from tracegs.segment.masks import colours, render_labels
+from tracegs.segment.masks import colours
 from tracegs.view.camera import camera_from_view, pose_from_viewmat, vertical_fov, viewmat_from_pose
-from tracegs.view.scene import dataset_cameras, find_segments, geometry_at, phase, render_view
+from tracegs.view.scene import dataset_cameras, find_segments, phase, render_view
 from tracegs.view.server import round_step
 
 FIXTURE = Path(__file__).parents[1] / "fixtures" / "run_1668a0e"  # a tiny trained TRACE run
@@ -83,27 +80,25 @@ def test_the_viewer_frame_from_a_dataset_cameras_pose_is_that_cameras_render(tin
     cam = load_scene(scene, "test").frames[0].camera
     wxyz, position = pose_from_viewmat(cam.viewmat)
     view = camera_from_view(wxyz, position, vertical_fov(cam), cam.width / cam.height, cam.width)
-    gaussians = gaussians_at(loaded.model, loaded.state, 1.2)
-    background = torch.ones(3)
-    expected = render_gaussians(loaded.model, gaussians, cam, background).numpy()
-    got = render_view(loaded.model, gaussians, view, background)
+    predictor = loaded.predictor.with_background(torch.ones(3))
+    gaussians = predictor.gaussians_at(1.2)
+    expected = predictor.render(cam, gaussians=gaussians).numpy()
+    got = render_view(predictor, gaussians, view)
     assert got.shape == expected.shape and got.dtype == np.uint8
     assert np.abs(got / 255.0 - expected).max() <= 1 / 255 + 1e-4
     assert expected.std() > 0.01  # the run is seen: not a blank image
 
 
-def test_time_to_geometry_is_gaussians_at_for_trace_and_deform_for_f_defo(tiny_run):
-    loaded = load_run(tiny_run[0], device="cpu")
-    model, state = loaded.model, loaded.state
-    for t in (0.0, 0.5, state.t_max, 1.0, 1.4):
-        for name, value in geometry_at(model, state, t, "trace").items():
-            torch.testing.assert_close(value, gaussians_at(model, state, t)[name])
-        for name, value in geometry_at(model, state, t, "f_defo").items():
+def test_the_f_defo_motion_is_the_deformation_field_at_every_time(tiny_run):
+    predictor = load_run(tiny_run[0], device="cpu").predictor
+    model = predictor.model
+    for t in (0.0, 0.5, predictor.t_max, 1.0, 1.4):
+        for name, value in predictor.gaussians_at(t, "f_defo").items():
             torch.testing.assert_close(value, model.deform(t)[name])
-    t = 0.5 * handover_time(model, state.t_max)  # inside the span both are f_defo
-    torch.testing.assert_close(geometry_at(model, state, t, "trace"), geometry_at(model, state, t, "f_defo"))
+    t = 0.5 * predictor.handover_time()  # inside the span both are f_defo
+    torch.testing.assert_close(predictor.gaussians_at(t, "trace"), predictor.gaussians_at(t, "f_defo"))
     with pytest.raises(ValueError, match="motion 'defgs'"):
-        geometry_at(model, state, 1.0, "defgs")
+        predictor.gaussians_at(1.0, "defgs")
 
 
 def test_phase_says_observed_up_to_the_training_end_and_predicted_after():
@@ -141,10 +136,11 @@ def test_segments_are_offered_only_when_the_run_has_them_and_tint_the_image(tiny
     assert note == "" and segments.k == 2 and torch.equal(segments.labels, labels)
     np.testing.assert_allclose(segments.palette, colours(2, False))
     cam = load_scene(scene, "train").frames[0].camera
-    gaussians = geometry_at(loaded.model, loaded.state, 0.3)
-    plain = render_view(loaded.model, gaussians, cam, torch.ones(3)).astype(float)
-    painted = render_view(loaded.model, gaussians, cam, torch.ones(3), segments).astype(float)
-    label_image, _ = render_labels(loaded.model, gaussians, labels, 2, cam)
+    predictor = loaded.predictor.with_background(torch.ones(3))
+    gaussians = predictor.gaussians_at(0.3)
+    plain = render_view(predictor, gaussians, cam).astype(float)
+    painted = render_view(predictor, gaussians, cam, segments).astype(float)
+    label_image, _ = predictor.render_labels(cam, labels, 2, gaussians=gaussians)
     inside = label_image > 0
     assert inside.any() and not inside.all()
     np.testing.assert_array_equal(painted[~inside], plain[~inside])  # the background is not tinted

@@ -19,10 +19,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+from ..extrapolate.settings import ExtrapolationConfig
 from ..models.deformation import DeformationConfig
 from ..models.dynamics import DynamicsConfig
 from ..utils import cpu_has_fast_bf16
-from .sections import DensifyConfig, ExtrapolationConfig, OptimConfig, Stage2Config
+from .sections import DensifyConfig, OptimConfig, Stage2Config
 from .validate import check_setting, flag_name, validate  # noqa: F401  (part of the config API)
 
 

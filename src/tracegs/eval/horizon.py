@@ -18,7 +18,6 @@ import torch
 from ..data.dataset import frame_interval
 from ..data.frames import load_image
 from ..data.scene import available_splits, load_scene
-from ..extrapolate.future import gaussians_at
 from ..run import load_run, run_data
 from ..utils import atomic_write_image
 from .metrics import mae_psnr, mse
@@ -38,10 +37,10 @@ def long_horizon(
     docstring); the per-time table and the times up to which anything was checked."""
     run = Path(run)
     out = run / "eval" / "horizon" if out is None else Path(out)
-    loaded = load_run(run, device)
-    model, state, cfg = loaded.model, loaded.state, loaded.config
-    data = run_data(cfg, data)
-    dev = model.aabb.device
+    loaded = load_run(run, device, data)
+    predictor, cfg = loaded.predictor, loaded.config
+    data = run_data(cfg, data)  # (a clear error when the scene is not there)
+    dev = predictor.device
     t_max = float(loaded.meta["t_max"])
     splits = {s: load_scene(data, s, cfg.downscale) for s in available_splits(data)}
     train = splits["train"]
@@ -52,24 +51,21 @@ def long_horizon(
     ids = list(dict.fromkeys(f.camera_id for f in pool))[:cameras]
     views = {c: next(f for f in pool if f.camera_id == c) for c in ids}
     truth = {(f.camera_id, round(f.time, 6)): f for f in pool}
-    background = torch.tensor(train.background, device=dev)
     end_of_truth = max((f.time for f in pool), default=t_max)
-    moving = model.moving_rows  # the Gaussians the fields move (a capture's room stands still)
-    at_max = _moving(gaussians_at(model, state, t_max)["means"], moving)
+    moving = predictor.model.moving_rows  # the Gaussians the fields move (a capture's room stands still)
+    at_max = _moving(predictor.gaussians_at(t_max)["means"], moving)
     lo, hi = at_max.min(0).values, at_max.max(0).values
     pad = 0.5 * (hi - lo)
     rows, k = [], 1
     while t_max + k * dt <= until + 0.01 * dt:
         t = t_max + k * dt
-        g = gaussians_at(model, state, t)
+        g = predictor.gaussians_at(t)
         means = _moving(g["means"], moving)
         inside = ((means >= lo - pad) & (means <= hi + pad)).all(-1).float().mean()
         row = {"t": round(t, 6), "in_sight": round(float(inside), 4)}
         scores = []
         for c, f in views.items():
-            with torch.no_grad():
-                image = model.render(g, f.camera.to(dev), cfg.sh_degree, background).image
-                image = model.colour(image, f.camera_id).clamp(0, 1)
+            image = predictor.render(f.camera.to(dev), gaussians=g, camera_id=f.camera_id)
             atomic_write_image(out / f"c{c}_t{t:.4f}.png", image)
             gt = truth.get((c, round(t, 6)))
             if gt is not None:

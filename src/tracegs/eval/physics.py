@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..extrapolate import gaussians_at, handover_time
+from ..extrapolate import Predictor
 from ..physics.free_body import FreeBody
 
 
@@ -80,14 +80,14 @@ OWNER_TIMES = 5
 """Times over [0, t] at which ``_parts_at`` compares each Gaussian's path with the parts'."""
 
 
-def _parts_at(model, state, t: float, gt, radius: float) -> tuple[torch.Tensor, torch.Tensor]:
+def _parts_at(predictor: Predictor, t: float, gt, radius: float) -> tuple[torch.Tensor, torch.Tensor]:
     """``(means [N, 3], part id [N])`` of the Gaussians at time ``t`` (0: on no part). Of the parts whose
     surface lies within ``radius`` of a Gaussian at ``t``, it belongs to the one whose motion carries it
     along its own path best (the mean distance over ``OWNER_TIMES`` times from 0 to ``t``): where two
     parts touch (a disc on its pedestal), the nearest surface point can be either part's."""
     points, part_ids, transforms, _ = gt
     parts = sorted(int(p) for p in np.unique(part_ids))
-    means = gaussians_at(model, state, t)["means"]
+    means = predictor.gaussians_at(t)["means"]
     T_t = transforms(t)  # [P, 4, 4], rest -> world at t
     near = []  # [P] x [N]: within radius of the part's surface at t
     for p in parts:
@@ -96,7 +96,7 @@ def _parts_at(model, state, t: float, gt, radius: float) -> tuple[torch.Tensor, 
     near = torch.stack(near)
     cost = torch.zeros(near.shape, dtype=means.dtype, device=means.device)
     for s in np.linspace(0.0, t, OWNER_TIMES)[:-1]:
-        x_s, T_s = gaussians_at(model, state, float(s))["means"], transforms(float(s))
+        x_s, T_s = predictor.gaussians_at(float(s))["means"], transforms(float(s))
         for i, p in enumerate(parts):  # the part's motion from t back to s, applied to where it is at t
             cost[i] += (_transform(T_s[p - 1] @ np.linalg.inv(T_t[p - 1]), means) - x_s).norm(dim=-1)
     owner = torch.as_tensor(parts, device=means.device)[cost.masked_fill(~near, math.inf).argmin(dim=0)]
@@ -104,19 +104,19 @@ def _parts_at(model, state, t: float, gt, radius: float) -> tuple[torch.Tensor, 
 
 
 @torch.no_grad()
-def physics_errors(model, state, data: Path, times: list[float], radius: float = 0.03) -> dict:
+def physics_errors(predictor: Predictor, data: Path, times: list[float], radius: float = 0.03) -> dict:
     """Per-part trajectory error over ``times`` (> t_max) and angular-velocity error at t_max, for a
-    model and its post-training ``state`` (``extrapolate.ExtrapolationState``)."""
-    t_max = state.t_max
+    trained run (``extrapolate.Predictor``)."""
+    t_max = predictor.t_max
     gt = _gt(data)
     part_ids, transforms = gt[1], gt[2]
     parts = sorted(int(p) for p in np.unique(part_ids))
     T_start = transforms(t_max)
-    x_start, owner = _parts_at(model, state, t_max, gt, radius)
+    x_start, owner = _parts_at(predictor, t_max, gt, radius)
     result = {"radius": radius, "parts": {}}
     per_time = {p: [] for p in parts}
     for t in times:
-        x_pred = gaussians_at(model, state, t)["means"]
+        x_pred = predictor.gaussians_at(t)["means"]
         T_t = transforms(t)
         for p in parts:
             sel = owner == p
@@ -126,7 +126,7 @@ def physics_errors(model, state, data: Path, times: list[float], radius: float =
             rel = T_t[p - 1] @ np.linalg.inv(T_start[p - 1])
             err = (x_pred[sel] - _transform(rel, x_start[sel])).norm(dim=-1).mean()
             per_time[p].append({"t": t, "error": float(err)})
-    omega = _spin_at(model, state, x_start, t_max)
+    omega = _spin_at(predictor, x_start, t_max)
     motions = gt[3]
     for p in parts:
         sel = owner == p
@@ -137,19 +137,19 @@ def physics_errors(model, state, data: Path, times: list[float], radius: float =
             entry.update(_compare_omega(omega[sel].median(dim=0).values.cpu().numpy(), motions[p - 1], t_max))
         result["parts"][str(p)] = entry
     if omega is not None:
-        result["omega_over_span"] = _omega_over_span(model, state, gt, motions, radius)
+        result["omega_over_span"] = _omega_over_span(predictor, gt, motions, radius)
     return result
 
 
-def _omega_over_span(model, state, gt, motions: list, radius: float) -> list[dict]:
+def _omega_over_span(predictor: Predictor, gt, motions: list, radius: float) -> list[dict]:
     """Relative error of each rotating part's median learned |w| at query times across the training
     span: fractions of t_max and the handover time."""
-    t_max = state.t_max
-    times = sorted({t_max * f for f in (0.25, 0.5, 0.75, 1.0)} | {handover_time(model, t_max)})
+    t_max = predictor.t_max
+    times = sorted({t_max * f for f in (0.25, 0.5, 0.75, 1.0)} | {predictor.handover_time()})
     rows = []
     for t in times:
-        means, owner = _parts_at(model, state, t, gt, radius)
-        omega = _learned_angular_velocity(model, means, t)
+        means, owner = _parts_at(predictor, t, gt, radius)
+        omega = _learned_angular_velocity(predictor.model, means, t)
         row = {"t": t, "parts": {}}
         for p, motion in enumerate(motions, start=1):
             sel = owner == p
@@ -166,15 +166,15 @@ def _omega_over_span(model, state, gt, motions: list, radius: float) -> list[dic
     return rows
 
 
-def _spin_at(model, state, means: torch.Tensor, t: float) -> torch.Tensor | None:
+def _spin_at(predictor: Predictor, means: torch.Tensor, t: float) -> torch.Tensor | None:
     """[N, 3] the angular velocity the future turns each Gaussian at, from ``t`` (after the handover):
     f_trd's, or its free body's where one moves it (``extrapolation.free_bodies``)."""
-    omega = _learned_angular_velocity(model, means, t)
-    bodies = state.free_bodies
+    omega = _learned_angular_velocity(predictor.model, means, t)
+    bodies = predictor.state.free_bodies
     if (
         omega is None
         or bodies is None
-        or not model.cfg.extrapolation.free_bodies
+        or not predictor.settings.free_bodies
         or len(omega) != len(bodies["labels"])
     ):
         return omega

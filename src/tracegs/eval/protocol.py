@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 from collections import Counter, defaultdict
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import torch
@@ -22,7 +22,6 @@ from tqdm import tqdm
 from ..config import apply_overrides
 from ..data.frames import camera_key
 from ..data.scene import Frame, available_splits, load_image, load_scene
-from ..extrapolate import gaussians_at
 from ..run import load_run, run_data
 from ..utils import atomic_write_image
 from .metrics import mae_psnr, mse, psnr, ssim
@@ -117,16 +116,16 @@ def evaluate_run(
     result's ``notes``."""
     run = Path(run)
     out = run / "eval" if out is None else Path(out)
-    loaded = load_run(run, device)
-    model, cfg, meta, state = loaded.model, loaded.config, loaded.meta, loaded.state
+    loaded = load_run(run, device, data)
+    predictor, cfg, meta = loaded.predictor, loaded.config, loaded.meta
+    data = run_data(cfg, data)  # (a clear error when the scene is not there)
     if render_settings:
-        model.cfg = cfg = apply_overrides(cfg, render_settings)
-    data = run_data(cfg, data)
+        cfg = apply_overrides(cfg, render_settings)
+        predictor = predictor.with_settings(**asdict(cfg.extrapolation))
     scene = load_scene(data, "train", cfg.downscale)
     t_end = cfg.t_train_end if cfg.t_train_end is not None else scene.t_train_end
     t_end = meta["t_max"] if t_end is None else t_end
-    dev = model.aabb.device
-    background = torch.tensor(scene.background, device=dev)
+    dev = predictor.device
     lpips_fn = None
     if with_lpips:
         from .lpips import lpips as lpips_fn
@@ -144,11 +143,10 @@ def evaluate_run(
             by_time[f.time].append((cameras, f))
         records = []
         for t in sorted(by_time):
-            gaussians = gaussians_at(model, state, t)
+            gaussians = predictor.gaussians_at(t)
             for cameras, f in by_time[t]:
-                cam = f.camera.to(dev)
-                pred = model.render(gaussians, cam, cfg.sh_degree, background).image
-                pred = model.colour(pred, f.camera_id).clamp(0, 1)  # a training camera's own colours
+                # (a training camera in its own colours)
+                pred = predictor.render(f.camera.to(dev), gaussians=gaussians, camera_id=f.camera_id)
                 gt = load_image(f, scene.background).to(dev)
                 if half_res:
                     pred, gt = (
@@ -189,7 +187,7 @@ def evaluate_run(
         problem = ground_truth_problem(data)
         if problem is None:
             future = [r["t"] for r in result["extrapolation"]["per_time"]]
-            result["physics"] = physics_errors(model, state, data, future)
+            result["physics"] = physics_errors(predictor, data, future)
         else:
             notes.append(f"physics errors skipped: {problem}")
     result.update(
@@ -200,8 +198,8 @@ def evaluate_run(
         **({} if future_end is None else {"future_end": future_end}),
         train_seconds=meta["train_seconds"],
         iterations=meta["step"],
-        freeze_threshold=state.freeze_threshold,
-        gaussians=int(model.gaussians["means"].shape[0]),
+        freeze_threshold=predictor.state.freeze_threshold,
+        gaussians=int(predictor.model.gaussians["means"].shape[0]),
         **({"images": str(out)} if save_images else {}),
         **({"notes": notes} if notes else {}),
     )

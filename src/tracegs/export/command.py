@@ -19,13 +19,12 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
-from ..extrapolate import gaussians_at
+from ..extrapolate import check_time
 from ..models.gaussians import rgb_to_sh0
 from ..run import RunError, load_run, load_tensors
 from ..utils import atomic_write_text
 from .palette import colours
 from .ply import write_gaussians
-from .render import check_time
 from .splat import write_splat
 
 FORMATS = {"ply": (".ply",), "splat": (".splat",), "both": (".ply", ".splat")}
@@ -40,7 +39,7 @@ _WRITERS = {".ply": write_gaussians, ".splat": write_splat}
 def parse_times(spec: str, max_frames: int = MAX_FRAMES) -> list[float]:
     """The times ``a, a + step, ...`` of ``a:b:step`` up to ``b``, ``b`` included when it lands on the
     grid (to round-off: ``0:1.5:0.25`` is 7 times); ValueError naming ``--times`` for a bad spec. The
-    run's own limit on the times (``render.check_time``) is checked once the run is read."""
+    run's own limit on the times (``extrapolate.check_time``) is checked once the run is read."""
     parts = str(spec).split(":")
     try:
         a, b, step = (float(x) for x in parts)
@@ -56,18 +55,6 @@ def parse_times(spec: str, max_frames: int = MAX_FRAMES) -> list[float]:
     if count > max_frames:
         raise ValueError(f"--times {spec!r}: {count} frames, more than the {max_frames} a sequence may hold")
     return [round(a + i * step, 12) for i in range(count)]
-
-
-@torch.no_grad()
-def gaussians_for_export(model, state, t: float) -> dict[str, torch.Tensor]:
-    """The full parameter dict at time ``t``: the geometry of ``extrapolate.gaussians_at`` (f_defo or the
-    learned physics), the canonical opacities and colours."""
-    g = model.gaussians
-    geometry = gaussians_at(model, state, t)
-    return {
-        "means": geometry["means"], "quats": geometry["quats"], "scales": geometry["scales"],
-        "opacities": g["opacities"], "sh0": g["sh0"], "shN": g["shN"],
-    }  # fmt: skip
 
 
 def load_labels(run: Path, count: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -135,15 +122,14 @@ def export_run(
         raise ValueError("give --time T or --times START:STOP:STEP" + (", not both" if times else ""))
     sequence = parse_times(times) if times is not None else [check_time(float(time), math.inf)]
     run = Path(run)
-    loaded = load_run(run, device)
-    model, state = loaded.model, loaded.state
-    count = int(model.gaussians["means"].shape[0])
+    predictor = load_run(run, device).predictor
+    count = int(predictor.model.gaussians["means"].shape[0])
     colour = load_labels(run, count) if labels else None
-    t_max = float(state.t_max)
-    check_time(sequence[-1], t_max, "--time" if times is None else "--times stop")
+    t_max = predictor.t_max
+    predictor.check_time(sequence[-1], "--time" if times is None else "--times stop")
 
     def params_at(t: float) -> dict[str, torch.Tensor]:
-        params = gaussians_for_export(model, state, t)
+        params = predictor.parameters_at(t)
         return params if colour is None else with_label_colours(params, *colour)
 
     report = {"run": str(run), "format": fmt, "labels": labels, "gaussians": count, "t_max": t_max}

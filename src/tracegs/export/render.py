@@ -11,25 +11,9 @@ from tqdm import tqdm
 
 from ..data.cameras import Camera, look_at_viewmat
 from ..data.scene import available_splits, load_scene
-from ..extrapolate import gaussians_at
+from ..extrapolate import Predictor
 from ..run import load_run, run_data
 from ..utils import atomic_write_image
-
-
-@torch.no_grad()
-def render_at(model, state, t: float, camera: Camera, background: torch.Tensor) -> torch.Tensor:
-    """Image [H, W, 3] of the scene at time ``t`` (extrapolated past the run's training span with its
-    post-training ``state``) seen by ``camera``."""
-    return render_gaussians(model, gaussians_at(model, state, t), camera, background)
-
-
-@torch.no_grad()
-def render_gaussians(model, gaussians: dict, camera: Camera, background: torch.Tensor) -> torch.Tensor:
-    """Image [H, W, 3] of the Gaussians whose geometry at some time is ``gaussians`` (``gaussians_at``),
-    in the colours of a camera the run was not trained with (``models/colour.py``)."""
-    return model.colour(model.render(gaussians, camera, model.cfg.sh_degree, background).image, None).clamp(
-        0, 1
-    )
 
 
 def orbit_camera(reference: list[Camera], azimuth_deg: float, elevation_deg: float | None = None) -> Camera:
@@ -80,25 +64,6 @@ def pick_camera(data: Path, spec: str, downscale: int = 1) -> Camera:
     return frames[int(value or 0)].camera
 
 
-MAX_TIME_FACTOR = 10.0
-"""Latest time a command renders, in multiples of the training span's end (and at least 1): the
-extrapolation integrates the physics from the training span's end, so the cost grows with t."""
-
-
-def check_time(t: float, t_max: float, flag: str = "--time") -> float:
-    """``t`` when a run trained up to ``t_max`` can render it: finite, >= 0, and no later than
-    ``MAX_TIME_FACTOR`` x ``t_max`` (at least 1); else a ValueError naming ``flag``."""
-    limit = max(MAX_TIME_FACTOR * t_max, 1.0)
-    if not math.isfinite(t) or t < 0:
-        raise ValueError(f"{flag} must be a finite time >= 0, got {t}")
-    if t > limit:
-        raise ValueError(
-            f"{flag} {t:g} is beyond the limit {limit:g} ({MAX_TIME_FACTOR:g} x the training span's end "
-            f"{t_max:g}): the extrapolation's cost grows with t"
-        )
-    return t
-
-
 IMAGE_SUFFIXES, VIDEO_SUFFIXES = (".png", ".jpg", ".jpeg"), (".mp4", ".gif")
 
 
@@ -126,36 +91,30 @@ def render_command(
     _check_out(out, video)
     if video and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 1):
         raise ValueError(f"--frames must be a positive integer, got {frames}")
-    loaded = load_run(run, device)
-    model, cfg, state = loaded.model, loaded.config, loaded.state
-    check_time(t_end if video else time, state.t_max, "--t-end" if video else "--time")
-    data = run_data(cfg, data)
-    background = torch.tensor(load_scene(data, "train").background, device=model.aabb.device)
+    loaded = load_run(run, device, data)
+    predictor, cfg = loaded.predictor, loaded.config
+    data = run_data(cfg, data)  # (a clear error when the scene is not there)
+    predictor.check_time(t_end if video else time, "--t-end" if video else "--time")
     if not video:
-        cam = pick_camera(data, camera, cfg.downscale).to(model.aabb.device)
-        image = render_at(model, state, time, cam, background)
+        cam = pick_camera(data, camera, cfg.downscale).to(predictor.device)
+        image = predictor.render(cam, time)
         out = Path(out or Path(run) / "renders" / f"{camera.replace(':', '_')}_t{time:.3f}.png")
         return atomic_write_image(out, image)
     out = Path(out or Path(run) / "renders" / "sweep.mp4")
-    return render_sweep_video(model, state, data, out, t_end, frames, background, cfg.downscale)
-
-
-def render_sweep_video(model, state, data, out: Path, t_end, frames, background, downscale=1) -> Path:
-    """A video whose camera orbits once while time runs from 0 to ``t_end``."""
-    images = sweep(model, state, data, t_end, frames, background, downscale)
+    images = sweep(predictor, data, t_end, frames, cfg.downscale)
     return write_video(images, out, total=frames)
 
 
-def sweep(model, state, data, t_end: float, frames: int, background, downscale: int = 1, paint=None):
+def sweep(predictor: Predictor, data, t_end: float, frames: int, downscale: int = 1, paint=None):
     """The frames [H, W, 3] uint8 of a sweep: the camera orbits once while time runs from 0 to
     ``t_end``; ``paint(image, gaussians, camera)`` -> image, when given, draws on each rendered image
     (``gaussians``: their geometry at that frame's time)."""
     cams = [f.camera for f in load_scene(data, "train", downscale).frames]
     for k in range(frames):
         t = t_end * k / max(frames - 1, 1)
-        cam = orbit_camera(cams, 360.0 * k / frames).to(model.aabb.device)
-        gaussians = gaussians_at(model, state, t)
-        img = render_gaussians(model, gaussians, cam, background).cpu().numpy()
+        cam = orbit_camera(cams, 360.0 * k / frames).to(predictor.device)
+        gaussians = predictor.gaussians_at(t)
+        img = predictor.render(cam, gaussians=gaussians).cpu().numpy()
         if paint is not None:
             img = paint(img, gaussians, cam)
         yield (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)

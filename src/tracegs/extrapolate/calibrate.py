@@ -5,8 +5,8 @@ evaluation splits), once, when training ends (or by ``tracegs calibrate``).
 handover. Training shapes f_trd only through rendered images, so there its velocities are whatever the
 field's smoothness gives; ``extrapolation.hold_unseen`` keeps them where they are.
 
-``choose_freeze_threshold``: METHOD.md allows Gaussians that never move during training to be frozen
-when extrapolating; without it, f_trd's smoothness across an object's boundary lets a static part
+``choose_freeze_threshold``: Gaussians that never move during training may be frozen when
+extrapolating (the paper's supplementary material); without it, f_trd's smoothness across an object's boundary lets a static part
 creep along with its moving neighbour. Below which displacement a Gaussian counts as static depends on
 the scene's scale and on how noisy f_defo is, so the threshold is chosen per run by a
 pseudo-extrapolation on the training data: start the physics ``horizon`` frames before the last
@@ -19,29 +19,21 @@ force law that the learned physics does not.
 
 from __future__ import annotations
 
-from collections import defaultdict
 from pathlib import Path
 
 import torch
 
 from ..data.cameras import scene_extent_from_cameras
 from ..data.dataset import ViewDataset
-from ..data.scene import load_image, load_scene
+from ..data.scene import load_image
 from ..image_metrics import mae_psnr, mse
 from ..render.sh import SH_C0
-from .future import physics_from
+from .free_bodies import choose_free_bodies
+from .joints import choose_joint_laws
+from .predictor import Predictor
+from .settings import ExtrapolationConfig
 from .state import ExtrapolationState
-
-
-def training_frames_by_time(data: Path, downscale: int, t_max: float):
-    """The training scene and its frames with time <= ``t_max`` grouped by time: ``(scene, {t: frames})``
-    with the times in increasing order."""
-    scene = load_scene(Path(data), "train", downscale)
-    by_time: dict[float, list] = defaultdict(list)
-    for f in scene.frames:
-        if f.time <= t_max + 1e-9:
-            by_time[f.time].append(f)
-    return scene, dict(sorted(by_time.items()))
+from .views import training_frames_by_time
 
 
 def unseen_gaussians(
@@ -64,7 +56,7 @@ def unseen_gaussians(
             state = model.deform(t)
         for f in by_time[t]:
             with torch.enable_grad():  # also when called under no_grad (evaluation)
-                image = model.render(state, f.camera.to(sh0.device), model.cfg.sh_degree, background).image
+                image = model.render(state, f.camera.to(sh0.device), model.sh_degree, background).image
                 (grad,) = torch.autograd.grad(image.sum(), sh0)
             seen |= grad.reshape(sh0.shape[0], -1).sum(-1) / (3 * SH_C0) >= min_weight
     return ~seen
@@ -76,8 +68,7 @@ FREEZE_FRACTIONS = (0.0, 0.001, 0.002, 0.005, 0.01, 0.02)
 
 @torch.no_grad()
 def choose_freeze_threshold(
-    model,
-    state_so_far: ExtrapolationState,
+    predictor: Predictor,
     data: Path,
     downscale: int,
     t_max: float,
@@ -89,8 +80,10 @@ def choose_freeze_threshold(
     ``target_times`` training times, extrapolated from ``horizon_frames`` frames before t_max.
 
     Returns ``(threshold, {threshold: psnr})``; ties go to the smaller threshold. Models without both
-    fields (DefGS, static, "no f_defo") return 0.
+    fields (DefGS, static, "no f_defo") return 0. ``predictor``: the trained model with the state
+    chosen so far (the Gaussians no camera saw).
     """
+    model = predictor.model
     if model.dynamics is None or model.deformation is None:
         return 0.0, {}
     scene, by_time = training_frames_by_time(data, downscale, t_max)
@@ -105,7 +98,7 @@ def choose_freeze_threshold(
     images = {
         t: [(f.camera.to(dev), load_image(f, scene.background).to(dev)) for f in by_time[t]] for t in targets
     }
-    sh_degree = model.cfg.sh_degree
+    sh_degree = model.sh_degree
     displacement = model.max_displacement(start)
     scores: dict[float, float] = {}
     for fraction in FREEZE_FRACTIONS:
@@ -115,7 +108,7 @@ def choose_freeze_threshold(
         )
         errors = []
         for t in targets:
-            gaussians = physics_from(model, state_so_far, start, t, moving=moving)
+            gaussians = predictor.physics_from(start, t, moving=moving)
             for camera, gt in images[t]:
                 pred = model.render(gaussians, camera, sh_degree, background).image.clamp(0, 1)
                 errors.append(float(mse(pred, gt)))
@@ -130,34 +123,38 @@ def has_policy(model) -> bool:
     return model.dynamics is not None and model.deformation is not None
 
 
-def calibrate(model, t_max: float, extent: float | None = None) -> ExtrapolationState:
-    """The extrapolation state of a trained ``model`` whose training span ends at ``t_max``: the
-    Gaussians no camera sees before the handover, the freeze threshold, the free bodies, then the
-    joint parts, as the config's ``extrapolation`` section asks (the training images are read from
-    ``model.cfg.data``).
-    ``extent``: the scene extent of the training cameras, found from the scene when None."""
-    from .free_bodies import choose_free_bodies
-    from .joints import choose_joint_laws
-
-    cfg, settings = model.cfg, model.cfg.extrapolation
+def calibrate(
+    model,
+    t_max: float,
+    settings: ExtrapolationConfig,
+    data: Path | None = None,
+    downscale: int = 1,
+    extent: float | None = None,
+    background: torch.Tensor | None = None,
+) -> Predictor:
+    """The trained ``model`` whose training span ends at ``t_max``, with the extrapolation state chosen
+    on its training images in ``data`` (at ``downscale``; None where no choice reads them) as ``settings``
+    ask: the Gaussians no camera
+    sees before the handover, the freeze threshold, the free bodies, then the joint parts.
+    ``extent``: the scene extent of the training cameras, found from the scene when None;
+    ``background``: the returned predictor's render background."""
     state = ExtrapolationState(t_max=t_max)
+    predictor = Predictor(model, state, settings, background)
     if not has_policy(model):
-        return state
+        return predictor
     if settings.hold_unseen:
-        state.unseen = unseen_gaussians(model, cfg.data, cfg.downscale, t_max)
+        state.unseen = unseen_gaussians(model, data, downscale, t_max)
     if extent is None and (settings.freeze_static or settings.free_bodies or settings.joint_laws):
         dev = model.aabb.device
-        centers = ViewDataset(cfg.data, "train", cfg.downscale, t_max=t_max, device=dev).camera_centers()
+        centers = ViewDataset(data, "train", downscale, t_max=t_max, device=dev).camera_centers()
         extent = scene_extent_from_cameras(centers)
     if settings.freeze_static:
-        state.freeze_threshold, scores = choose_freeze_threshold(
-            model, state, cfg.data, cfg.downscale, t_max, extent
-        )
+        state.freeze_threshold, scores = choose_freeze_threshold(predictor, data, downscale, t_max, extent)
         state.report["freeze_psnr"] = {f"{k:.6g}": round(v, 3) for k, v in scores.items()}
     if settings.free_bodies:
         state.free_bodies, state.report["free_bodies"] = choose_free_bodies(
-            model, state, cfg.data, cfg.downscale, t_max, extent
+            predictor, data, downscale, extent
         )
     if settings.joint_laws:
-        state.joint_laws, state.report["joint_laws"] = choose_joint_laws(model, state, t_max, extent)
-    return state
+        state.joint_laws, state.report["joint_laws"] = choose_joint_laws(predictor, extent)
+    return predictor

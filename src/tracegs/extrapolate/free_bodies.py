@@ -12,7 +12,6 @@ from pathlib import Path
 
 import torch
 
-from ..data.scene import load_image
 from ..image_metrics import mse
 from ..physics.free_body import (
     FREE_BODY_NUMBERS,
@@ -29,51 +28,18 @@ from ..physics.free_body import (
     split_rigid,
 )
 from ..physics.integrate import particle_velocity
-from ..physics.so3 import quat_normalize
-from .calibrate import training_frames_by_time
-from .future import handover_time, physics_from
-from .state import ExtrapolationState
+from .views import TrainingViews
 
 
-class _TrainingViews:
-    """The training images at the times in (``t_from``, ``t_to``] up to ``t_max`` and f_defo's state at each:
-    ``views`` {t: [(camera, image)]}, ``deformed`` {t: state}."""
-
-    def __init__(self, model, data: Path, downscale: int, t_from: float, t_to: float, t_max: float):
-        scene, by_time = training_frames_by_time(data, downscale, t_max)
-        dev = model.aabb.device
-        self.model = model
-        self.background = torch.tensor(scene.background, device=dev)
-        self.views = {
-            t: [(f.camera.to(dev), load_image(f, scene.background).to(dev)) for f in frames]
-            for t, frames in by_time.items()
-            if t_from + 1e-9 < t <= t_to + 1e-9
-        }
-        self.deformed = {}
-        for t in self.views:
-            state = model.deform(t)
-            self.deformed[t] = {**state, "quats": quat_normalize(state["quats"])}
-
-    def with_part(self, t: float, rows: torch.Tensor, means: torch.Tensor, quats: torch.Tensor) -> dict:
-        """f_defo's state at ``t`` with the Gaussians ``rows`` at ``means``, ``quats``."""
-        state = self.deformed[t]
-        all_means, all_quats = state["means"].clone(), state["quats"].clone()
-        all_means[rows], all_quats[rows] = means, quats
-        return {**state, "means": all_means, "quats": all_quats}
-
-    def render(self, state: dict, camera) -> torch.Tensor:
-        return self.model.render(state, camera, self.model.cfg.sh_degree, self.background).image
-
-
-class _Backtest(_TrainingViews):
+class _Backtest(TrainingViews):
     """Futures started at ``t1`` against the training images at the training times in (``t1``, ``t_max``]:
     one part's Gaussians moved by a candidate motion, every other Gaussian where f_defo puts it."""
 
-    def __init__(self, model, state: ExtrapolationState, data: Path, downscale: int, t1: float, t_max: float):
-        super().__init__(model, data, downscale, t1, t_max, t_max)
+    def __init__(self, predictor, data: Path, downscale: int, t1: float, t_max: float):
+        super().__init__(predictor.model, data, downscale, t1, t_max, t_max)
         self.t1 = t1
-        self.start = model.deform(t1)
-        self.learned = {t: physics_from(model, state, t1, t) for t in self.views}
+        self.start = predictor.model.deform(t1)
+        self.learned = {t: predictor.physics_from(t1, t) for t in self.views}
 
     def error(self, rows: torch.Tensor, body: FreeBody | None) -> float:
         """Mean squared error over the views with the Gaussians ``rows`` moved from ``t1`` by ``body``
@@ -97,12 +63,13 @@ def window_means(model, t0: float, window: int) -> tuple[torch.Tensor, list[torc
     return times, [model.deform(float(t))["means"] for t in times]
 
 
-def moving_groups(model, state: ExtrapolationState, t0: float, extent: float, window: int) -> tuple:
+def moving_groups(predictor, t0: float, extent: float, window: int) -> tuple:
     """``(path, moved, u, groups)``: f_defo's means over the ``window`` frames before ``t0``
     (``window_means``), the [N] bool Gaussians it moves by more than 0.25% of the scene ``extent`` over
     them, f_trd's particle velocities [N, 3] at ``t0``, and the [N] labels of the rigid groups of the
     moved ones (``rigid_components``; 0: none). Free bodies and joint parts are found among them, so
-    the result is kept in ``state.cache`` for the calibration's next call."""
+    the result is kept in the state's cache for the calibration's next call."""
+    model, state = predictor.model, predictor.state
     key = (t0, extent, window, model.gaussians["means"].shape[0])
     cached = state.cache.get("moving_groups")
     if cached is not None and cached[0] == key:
@@ -149,7 +116,7 @@ def refine_free_body(
     rows: torch.Tensor,
     start: dict[str, torch.Tensor],
     t0: float,
-    frames: _TrainingViews,
+    frames: TrainingViews,
     steps: int,
     views_per_step: int,
     seed: int = 0,
@@ -202,9 +169,7 @@ def refine_free_body(
 
 
 @torch.no_grad()
-def choose_free_bodies(
-    model, state: ExtrapolationState, data: Path, downscale: int, t_max: float, extent: float
-) -> tuple[dict, list]:
+def choose_free_bodies(predictor, data: Path, downscale: int, extent: float) -> tuple[dict, list]:
     """The free bodies of a trained model (``extrapolation.free_bodies``): ``({"t0", "labels", "bodies"},
     report)``. The parts are the rigid groups (``rigid_components``) of the Gaussians that f_defo moves
     by more than 0.25% of the scene ``extent`` over the window before the handover t0, by f_trd's
@@ -212,8 +177,8 @@ def choose_free_bodies(
     Gaussian (``isolation``) and a free body fitted ``free_body_backtest`` frames before t0 predicts the
     training images from there no worse than ``free_body_tolerance`` times the learned physics does.
     ``labels`` [N]: 0 = the learned physics, k = ``bodies[k - 1]`` (``FreeBody.as_tensor`` at t0; [K, 15])."""
-    dyn = model.cfg.extrapolation
-    t0 = handover_time(model, t_max)
+    model, dyn, t_max = predictor.model, predictor.settings, predictor.t_max
+    t0 = predictor.handover_time()
     dev = model.aabb.device
     none = {
         "t0": t0,
@@ -223,19 +188,19 @@ def choose_free_bodies(
     t1 = t0 - dyn.free_body_backtest * model.dt_max
     if t1 - 2 * model.dt_max < -1e-9:  # too early in the span for a parabola before the backtest
         return none, []
-    path_t0, moved, u, parts = moving_groups(model, state, t0, extent, dyn.free_body_window)
+    path_t0, moved, u, parts = moving_groups(predictor, t0, extent, dyn.free_body_window)
     x0 = path_t0[1][0]
     backtest = path_t1 = before_t1 = None
     chosen, report = [], []
 
-    def fit_views(t: float, t_to: float) -> _TrainingViews | None:
+    def fit_views(t: float, t_to: float) -> TrainingViews | None:
         """The training images a free body from ``t`` is fitted to: its window's, to ``t_to``."""
         if dyn.free_body_refine_steps <= 0:
             return None
         t_from = t - (dyn.free_body_window + 0.5) * model.dt_max
-        return _TrainingViews(model, data, downscale, t_from, t_to, t_max)
+        return TrainingViews(model, data, downscale, t_from, t_to, t_max)
 
-    def refine(body: FreeBody, rows, start, t: float, frames: _TrainingViews | None) -> FreeBody:
+    def refine(body: FreeBody, rows, start, t: float, frames: TrainingViews | None) -> FreeBody:
         if frames is None:
             return body
         steps, views = dyn.free_body_refine_steps, dyn.free_body_refine_views
@@ -249,7 +214,7 @@ def choose_free_bodies(
             report.append({**entry, "free_body": False})
             continue  # it touches something still: a hinge or a rail, which the learned physics holds
         if backtest is None:
-            backtest = _Backtest(model, state, data, downscale, t1, t_max)
+            backtest = _Backtest(predictor, data, downscale, t1, t_max)
             path_t1 = window_means(model, t1, dyn.free_body_window)
             before_t1 = fit_views(t1, t1)
         # a body in flight with parts on hinges: a free body for each part

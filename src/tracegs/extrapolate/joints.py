@@ -40,9 +40,7 @@ from ..physics.joint import (
     refine_hinge,
 )
 from .free_bodies import moving_groups
-from .future import handover_time, physics_from
 from .joint_motion import joint_transforms
-from .state import ExtrapolationState
 from .thrown import choose_thrown
 
 MIN_FRAMES = 8
@@ -126,14 +124,14 @@ class _LearnedBacktest:
     """The learned physics started at f_defo's state at ``t1`` and run to the ``times`` after it (each
     Gaussian's mean; computed once for every part held out from the same frame)."""
 
-    def __init__(self, model, state: ExtrapolationState):
-        self.model, self.state, self.runs = model, state, {}
+    def __init__(self, predictor):
+        self.predictor, self.runs = predictor, {}
 
     def means(self, t1: float, times: list[float]) -> torch.Tensor:
         """[T, N, 3] the learned physics' means at ``times`` from ``t1``."""
         key = (t1, tuple(times))
         if key not in self.runs:
-            runs = [physics_from(self.model, self.state, t1, t)["means"] for t in times]
+            runs = [self.predictor.physics_from(t1, t)["means"] for t in times]
             self.runs[key] = torch.stack(runs).double().cpu()
         return self.runs[key]
 
@@ -208,26 +206,24 @@ def choose_part_law(
 
 
 @torch.no_grad()
-def choose_joint_laws(
-    model, state: ExtrapolationState, t_max: float, extent: float
-) -> tuple[dict | None, list]:
+def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
     """The joint parts of a trained model (``extrapolation.joint_laws``): ``({"t0", "labels", "parts"},
     report)``, ``labels`` [N] long (0: not a joint part, k: ``parts[k - 1]``), ``parts`` one dict each
     (``choose_part_law``); ``(None, report)`` where none is adopted. ``report``: one entry per part."""
-    settings = model.cfg.extrapolation
-    t0 = handover_time(model, t_max)
+    model, state, settings = predictor.model, predictor.state, predictor.settings
+    t0 = predictor.handover_time()
     steps = int(math.floor(t0 / model.dt_max + 1e-6))  # the frames up to t0, t = 0 included
     times = [max(0.0, t0 - k * model.dt_max) for k in range(steps, -1, -1)]
     if len(times) < MIN_FRAMES:
         return None, []
-    (_, window), moved, u, groups = moving_groups(model, state, t0, extent, settings.free_body_window)
+    (_, window), moved, u, groups = moving_groups(predictor, t0, extent, settings.free_body_window)
     x0 = window[0]
     bodies = state.free_bodies
     free = torch.zeros_like(moved)
     if bodies is not None and bodies["labels"].shape[0] == moved.shape[0] and abs(bodies["t0"] - t0) < 1e-9:
         free = bodies["labels"].to(moved.device) > 0
     path = [model.deform(float(t))["means"] for t in times]
-    learned = _LearnedBacktest(model, state)
+    learned = _LearnedBacktest(predictor)
     labels = torch.zeros(moved.shape[0], dtype=torch.long, device=moved.device)
     parts, report, paths, left, frames, thrown = [], [], [], [], [], []
     for label in range(1, int(groups.max()) + 1):

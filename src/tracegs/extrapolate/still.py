@@ -30,29 +30,32 @@ REASONS = {
 
 @torch.no_grad()
 def still_codes(
-    model, state, t0: float, means: torch.Tensor, params: DynamicsParams, moving: torch.Tensor | None = None
+    predictor, t0: float, means: torch.Tensor, params: DynamicsParams, moving: torch.Tensor | None = None
 ) -> torch.Tensor:
     """[N] uint8: why each Gaussian holds still after the handover ``t0`` (``MOVES`` where it moves),
     the first reason that applies in the order of the module's list. ``means`` [N, 3] and ``params``:
     f_defo's state at ``t0`` and f_trd's parameters there; ``moving`` [N] bool replaces the freeze
     threshold's choice (``FROZEN`` where false)."""
-    codes = _codes(*_rules(model, state, t0, means, params, moving), means)
+    codes = _codes(*_rules(predictor, t0, means, params, moving), means)
     return torch.zeros(means.shape[0], dtype=torch.uint8, device=means.device) if codes is None else codes
 
 
 def moving_after_handover(
-    model, state, t0: float, means: torch.Tensor, params: DynamicsParams, moving: torch.Tensor | None = None
+    predictor, t0: float, means: torch.Tensor, params: DynamicsParams, moving: torch.Tensor | None = None
 ) -> torch.Tensor | None:
     """[N] bool: the Gaussians the physics moves after ``t0`` (``still_codes == MOVES``); None when no
     rule holds any Gaussian still (every one moves)."""
-    codes = _codes(*_rules(model, state, t0, means, params, moving), means)
+    codes = _codes(*_rules(predictor, t0, means, params, moving), means)
     return None if codes is None else codes == MOVES
 
 
-def _rules(model, state, t0, means, params, moving) -> tuple:
-    """The [N] bool masks (or None where a rule does not apply) of ``STATIC``, ``FROZEN``, ``UNSEEN``."""
+def _rules(predictor, t0, means, params, moving) -> tuple:
+    """The [N] bool masks (or None where a rule does not apply) of ``STATIC``, ``FROZEN``, ``UNSEEN``
+    for a ``Predictor`` (its model, post-training state and settings)."""
+    model, state = predictor.model, predictor.state
     frozen = ~moving if moving is not None else _frozen(model, state, t0)
-    return model.static_mask, frozen, _unseen_held(model, state, t0, means, params)
+    held = _unseen_held(model, state, predictor.settings, t0, means, params)
+    return model.static_mask, frozen, held
 
 
 def _codes(static, frozen, unseen, means: torch.Tensor) -> torch.Tensor | None:
@@ -83,15 +86,17 @@ def _frozen(model, state, t0: float) -> torch.Tensor | None:
     return frozen
 
 
-def _unseen_held(model, state, t0: float, means: torch.Tensor, params: DynamicsParams) -> torch.Tensor | None:
+def _unseen_held(
+    model, state, settings, t0: float, means: torch.Tensor, params: DynamicsParams
+) -> torch.Tensor | None:
     """[N] bool: unseen before the handover and moved by f_trd far faster than by f_defo; None when the
     rule is off or no Gaussian is unseen."""
     unseen = state.unseen
-    if not model.cfg.extrapolation.hold_unseen or unseen is None:
+    if not settings.hold_unseen or unseen is None:
         return None
     if unseen.shape[0] != means.shape[0] or not bool(unseen.any()):
         return None
-    return unseen & ~fields_agree(model, t0, means, params, model.cfg.extrapolation.unseen_speed_ratio)
+    return unseen & ~fields_agree(model, t0, means, params, settings.unseen_speed_ratio)
 
 
 def fields_agree(model, t0: float, means: torch.Tensor, params: DynamicsParams, ratio: float) -> torch.Tensor:

@@ -283,6 +283,19 @@ class TraceModel(nn.Module):
             most = torch.maximum(most, (self.deform(t_max * k / samples)["means"] - x0).norm(dim=-1))
         return most
 
+    # (interim: the settings this model was built with, until it takes its sections)
+    @property
+    def method(self) -> str:
+        return self.cfg.method
+
+    @property
+    def sh_degree(self) -> int:
+        return self.cfg.sh_degree
+
+    @property
+    def stage2(self):
+        return self.cfg.stage2
+
     @property
     def dt_max(self) -> float:
         """Longest single integration step: one frame interval of the training data."""

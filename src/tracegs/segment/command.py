@@ -21,15 +21,15 @@ import torch
 from ..data.cameras import scene_extent_from_cameras
 from ..data.scene import available_splits, load_scene
 from ..export.ply import write_gaussians
-from ..export.render import render_gaussians, sweep, write_video
-from ..extrapolate import gaussians_at
+from ..export.render import sweep, write_video
+from ..extrapolate import Predictor
 from ..models.gaussians import rgb_to_sh0
 from ..run import load_run, load_tensors, run_data, save_tensors
 from ..utils import atomic_write_image, atomic_write_text
 from .cluster import Segmentation, segment
 from .config import SegmentConfig
 from .features import motion_features
-from .masks import colour_image, colours, overlay, render_labels
+from .masks import colour_image, colours, overlay
 from .score import score_segmentation
 from .truth import GroundTruth, find_ground_truth
 
@@ -60,12 +60,12 @@ def segment_run(
     if (k is None) == (not auto_k):
         raise ValueError("give K (--k K) or ask for --auto-k, not both" if k else "give --k K or --auto-k")
     started = time.perf_counter()
-    loaded = load_run(run, device)
-    model, state, cfg = loaded.model, loaded.state, loaded.config
-    data = run_data(cfg, data)
+    loaded = load_run(run, device, data)
+    predictor, cfg = loaded.predictor, loaded.config
+    data = run_data(cfg, data)  # (a clear error when the scene is not there)
     train = load_scene(data, "train", cfg.downscale)
     extent = scene_extent_from_cameras(torch.stack([f.camera.center for f in train.frames]))
-    features = motion_features(model, state, settings, extent)
+    features = motion_features(predictor, settings, extent)
     seg = segment(features, settings, None if auto_k else k)
     seconds_segment = time.perf_counter() - started
     run = Path(run)
@@ -84,7 +84,7 @@ def segment_run(
         "time": features.time,
         "static_threshold": features.static_threshold,
         "segments": _segments(seg),
-        "free_bodies": agreement_with_free_bodies(state, seg.labels),
+        "free_bodies": agreement_with_free_bodies(predictor.state, seg.labels),
         "settings": asdict(settings),
         "seconds": {"segment": seconds_segment},
     }
@@ -97,14 +97,9 @@ def segment_run(
     labels = torch.as_tensor(seg.labels)
     truth = find_ground_truth(data)
     t_show = features.time if time_ is None else float(time_)
-    background = torch.tensor(train.background, device=model.aabb.device)
-    report["outputs"] = write_outputs(
-        model, state, seg, labels, data, cfg.downscale, truth, t_show, out, background
-    )
+    report["outputs"] = write_outputs(predictor, seg, labels, data, cfg.downscale, truth, t_show, out)
     if video:
-        report["outputs"]["video"] = str(
-            segment_video(model, state, seg, labels, data, cfg.downscale, out, background)
-        )
+        report["outputs"]["video"] = str(segment_video(predictor, seg, labels, data, cfg.downscale, out))
     if truth is not None and score:
         started = time.perf_counter()
         report["ground_truth"] = {
@@ -113,7 +108,7 @@ def segment_run(
             "note": _truth_note(truth),
         }
         report["scores"] = score_segmentation(
-            model, state, labels, seg.k, seg.has_static, data, cfg.downscale, truth,
+            predictor, labels, seg.k, seg.has_static, data, cfg.downscale, truth,
             ignore_pixels=ignore_pixels,
         )  # fmt: skip
         report["seconds"]["score"] = time.perf_counter() - started
@@ -202,16 +197,15 @@ def _cameras_at(data: Path, downscale: int, t: float, truth: GroundTruth | None,
     return found[::step][:count]
 
 
-def write_outputs(model, state, seg, labels, data, downscale, truth, t, out: Path, background) -> dict:
+def write_outputs(predictor: Predictor, seg, labels, data, downscale, truth, t, out: Path) -> dict:
     """The mask strip and the coloured PLY at time ``t``."""
     palette = colours(seg.k, seg.has_static)
-    dev = model.aabb.device
-    gaussians = gaussians_at(model, state, t)
+    gaussians = predictor.gaussians_at(t)
     rows = []
     for frame in _cameras_at(data, downscale, t, truth):
-        cam = frame.camera.to(dev)
-        image = render_gaussians(model, gaussians, cam, background).cpu().numpy()
-        pred, _ = render_labels(model, gaussians, labels, seg.k, cam)
+        cam = frame.camera.to(predictor.device)
+        image = predictor.render(cam, gaussians=gaussians).cpu().numpy()
+        pred, _ = predictor.render_labels(cam, labels, seg.k, gaussians=gaussians)
         row = [overlay(image, pred, palette), colour_image(pred, palette)]
         gt = truth.read(frame) if truth is not None and abs(frame.time - t) < 1e-6 else None
         if gt is not None:
@@ -226,21 +220,19 @@ def write_outputs(model, state, seg, labels, data, downscale, truth, t, out: Pat
     rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)), constant_values=1.0) for r in rows]
     strip = atomic_write_image(out / f"masks_t{t:.3f}.png", np.concatenate(rows, axis=0))
     ply = write_gaussians(
-        coloured_gaussians(model, gaussians, labels, palette), out / f"segments_t{t:.3f}.ply"
+        coloured_gaussians(predictor.model, gaussians, labels, palette), out / f"segments_t{t:.3f}.ply"
     )
     return {"masks": str(strip), "ply": str(ply)}
 
 
 def segment_video(
-    model, state, seg, labels, data, downscale, out: Path, background, t_end=1.5, frames=90
+    predictor: Predictor, seg, labels, data, downscale, out: Path, t_end=1.5, frames=90
 ) -> Path:
     """An orbit while time runs 0 -> ``t_end``, the segments painted over the rendered images."""
     palette = colours(seg.k, seg.has_static)
 
     def paint(image, gaussians, cam):
-        pred, _ = render_labels(model, gaussians, labels, seg.k, cam)
+        pred, _ = predictor.render_labels(cam, labels, seg.k, gaussians=gaussians)
         return overlay(image, pred, palette)
 
-    return write_video(
-        sweep(model, state, data, t_end, frames, background, downscale, paint), out / "sweep.mp4"
-    )
+    return write_video(sweep(predictor, data, t_end, frames, downscale, paint), out / "sweep.mp4")

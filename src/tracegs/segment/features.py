@@ -42,10 +42,12 @@ class SegmentError(ValueError):
 
 
 @torch.no_grad()
-def motion_features(model, state, settings: SegmentConfig, extent: float = 1.0) -> MotionFeatures:
+def motion_features(predictor, settings: SegmentConfig, extent: float = 1.0) -> MotionFeatures:
     """Deform the canonical Gaussians to the last training time with f_defo, query f_trd there and build
     the features of ``settings.features``; the static group from f_defo's displacements. ``extent``:
-    the scene extent of the training cameras, the unit of ``stage2.static_displacement``."""
+    the scene extent of the training cameras, the unit of ``stage2.static_displacement``.
+    ``predictor``: the trained run (``extrapolate.Predictor``)."""
+    model, state = predictor.model, predictor.state
     if model.deformation is None:
         raise SegmentError("the run has no f_defo (a static or 'no f_defo' run): nothing tells what moves")
     t = float(state.t_max)
@@ -57,7 +59,7 @@ def motion_features(model, state, settings: SegmentConfig, extent: float = 1.0) 
     moved = (traj - traj[:1]).norm(dim=-1).amax(0)  # f_defo's largest displacement from t = 0
     threshold = settings.static_displacement
     if threshold is None:
-        threshold = state.freeze_threshold or model.cfg.stage2.static_displacement * extent
+        threshold = state.freeze_threshold or model.stage2.static_displacement * extent
     static = moved <= threshold
     if model.static_mask is not None:
         static |= model.static_mask.cpu()

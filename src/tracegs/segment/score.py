@@ -12,8 +12,7 @@ import numpy as np
 import torch
 
 from ..data.scene import available_splits, load_scene
-from ..extrapolate import gaussians_at
-from .masks import render_labels
+from ..extrapolate import Predictor
 from .metrics import match_image, pool
 from .truth import GroundTruth
 
@@ -27,28 +26,30 @@ def foreground(label_image: np.ndarray, static_label: int | None) -> np.ndarray:
 
 
 @torch.no_grad()
-def score_segmentation(model, state, labels: torch.Tensor, k: int, has_static: bool, data: Path,
+def score_segmentation(predictor: Predictor, labels: torch.Tensor, k: int, has_static: bool, data: Path,
                        downscale: int, truth: GroundTruth, splits: list[str] | None = None,
                        ignore_pixels: int = 0) -> dict:  # fmt: skip
     """``{"splits": {split: scores}, "training_times": scores, "future_times": scores, "per_time": [...]}``
     where scores are ``metrics.Scores.as_dict()``; frames without a mask are skipped. ``ignore_pixels``:
     ground-truth segments smaller than this are left out (``metrics.match_image``)."""
     matches: dict[tuple[str, float], list] = defaultdict(list)
-    dev = model.aabb.device
+    dev = predictor.device
     for split in splits or available_splits(data):
         by_time = defaultdict(list)
         for frame in load_scene(data, split, downscale).frames:
             if truth.mask_path(frame).is_file():
                 by_time[frame.time].append(frame)
         for t, frames in sorted(by_time.items()):
-            gaussians = gaussians_at(model, state, t)
+            gaussians = predictor.gaussians_at(t)
             for frame in frames:
-                pred, confidence = render_labels(model, gaussians, labels, k, frame.camera.to(dev))
+                pred, confidence = predictor.render_labels(
+                    frame.camera.to(dev), labels, k, gaussians=gaussians
+                )
                 gt = truth.read(frame)
                 if truth.layout == "foreground":
                     pred = foreground(pred, 0 if has_static else None)
                 matches[(split, t)].append(match_image(gt, pred, confidence, ignore_pixels))
-    t_max = float(state.t_max)
+    t_max = predictor.t_max
     by_split, by_time_all = defaultdict(list), defaultdict(list)
     for (split, t), ms in matches.items():
         by_split[split] += ms

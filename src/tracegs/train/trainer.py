@@ -320,7 +320,11 @@ class Trainer:
             if not ran:  # a finished run: its checkpoint takes the config of this call
                 self.save()
             if self.extrapolation is None:  # (a finished run resumed with the same settings keeps its own)
-                self.extrapolation = calibrate(self.model, self.t_max, self.extent)
+                cfg = self.cfg
+                predictor = calibrate(
+                    self.model, self.t_max, cfg.extrapolation, cfg.data, cfg.downscale, self.extent
+                )
+                self.extrapolation = predictor.state
                 save_extrapolation(self.run, self.extrapolation)
             summary = self.summary()
             atomic_write_text(self.run / SUMMARY, json.dumps(summary, indent=2))

@@ -15,26 +15,14 @@ import torch
 
 from ..data.cameras import Camera
 from ..data.scene import DatasetError, available_splits, load_scene
-from ..export.render import render_gaussians
-from ..extrapolate import gaussians_at
+from ..extrapolate import Predictor
 from ..segment.command import load_segments
-from ..segment.masks import colours, overlay, render_labels
+from ..segment.masks import colours, overlay
 
 MOTIONS = {"TRACE physics": "trace", "f_defo alone": "f_defo"}
 """The viewer's motion models by their GUI label: ``trace`` (f_defo up to the handover, then the
 learned physics: what TRACE predicts) and ``f_defo`` (the deformation field queried at every time,
 past its training span too: what DefGS predicts)."""
-
-
-@torch.no_grad()
-def geometry_at(model, state, t: float, motion: str = "trace") -> dict[str, torch.Tensor]:
-    """The Gaussians' geometry (``means`` [N, 3], ``quats`` [N, 4], log-``scales`` [N, 3]) at time
-    ``t`` under the motion model ``motion`` (a value of :data:`MOTIONS`)."""
-    if motion == "trace":
-        return gaussians_at(model, state, t)
-    if motion == "f_defo":
-        return model.deform(t)
-    raise ValueError(f"motion {motion!r}: expected one of {sorted(MOTIONS.values())}")
 
 
 @dataclass
@@ -62,14 +50,14 @@ def find_segments(run: Path, n: int) -> tuple[Segments | None, str]:
 
 @torch.no_grad()
 def render_view(
-    model, gaussians: dict, camera: Camera, background: torch.Tensor, segments: Segments | None = None
+    predictor: Predictor, gaussians: dict, camera: Camera, segments: Segments | None = None
 ) -> np.ndarray:
     """uint8 [H, W, 3]: the Gaussians ``gaussians`` (geometry at some time) seen by ``camera``, each
     pixel tinted by its segment's colour when ``segments`` is given."""
-    camera = camera.to(model.aabb.device)
-    image = render_gaussians(model, gaussians, camera, background).cpu().numpy()
+    camera = camera.to(predictor.device)
+    image = predictor.render(camera, gaussians=gaussians).cpu().numpy()
     if segments is not None:
-        label_image, _ = render_labels(model, gaussians, segments.labels, segments.k, camera)
+        label_image, _ = predictor.render_labels(camera, segments.labels, segments.k, gaussians=gaussians)
         image = overlay(image, label_image, segments.palette)
     return (np.clip(image, 0.0, 1.0) * 255 + 0.5).astype(np.uint8)
 

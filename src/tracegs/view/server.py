@@ -21,10 +21,9 @@ import numpy as np
 import torch
 
 from ..data.cameras import Camera, focus_point
-from ..export.render import check_time
 from ..run import RunError, load_run
 from .camera import camera_from_view, pose_from_viewmat, vertical_fov
-from .scene import MOTIONS, DatasetCameras, dataset_cameras, find_segments, geometry_at, phase, render_view
+from .scene import MOTIONS, DatasetCameras, dataset_cameras, find_segments, phase, render_view
 
 SPLIT_COLOURS = {"train": (31, 119, 180), "val": (255, 127, 14), "test": (44, 160, 44)}
 """Frustum colour (RGB 0-255) of each split's cameras."""
@@ -62,10 +61,10 @@ class Viewer:
 
     def __init__(self, server, run, cameras: DatasetCameras, t_end: float, width: int, config: ViewerConfig):
         self.server, self.run, self.width, self.config = server, run, width, config
-        self.model, self.state = run.model, run.state
-        self.t_max, self.t_end = float(run.state.t_max), t_end
+        self.predictor = run.predictor.with_background(cameras.background)
+        self.model = self.predictor.model
+        self.t_max, self.t_end = self.predictor.t_max, t_end
         self.step = round_step(t_end / config.slider_steps)
-        self.background = torch.tensor(cameras.background, dtype=torch.float32, device=run.model.aabb.device)
         self.segments, segments_note = find_segments(run.path, run.model.gaussians["means"].shape[0])
         self._playing = False
         self.frames = 0
@@ -112,7 +111,7 @@ class Viewer:
         gui, model = self.server.gui, self.model
         n = model.gaussians["means"].shape[0]
         gui.add_markdown(
-            f"**{self.run.path.name}**: {model.cfg.method}, {n} Gaussians, trained on t <= {self.t_max:.3f}"
+            f"**{self.run.path.name}**: {model.method}, {n} Gaussians, trained on t <= {self.t_max:.3f}"
         )
         marks = [(0.0, "0"), (self.t_end, f"{self.t_end:.2f}")]
         if 0 < self.t_max < self.t_end:
@@ -257,14 +256,14 @@ class Viewer:
                 continue
             width = min(self.width, max(int(cam.image_width), 8))
             camera = camera_from_view(cam.wxyz, cam.position, cam.fov, cam.aspect, width)
-            image = render_view(self.model, self._gaussians(t, motion), camera, self.background, segments)
+            image = render_view(self.predictor, self._gaussians(t, motion), camera, segments)
             client.scene.set_background_image(image, format="jpeg", jpeg_quality=self.config.jpeg_quality)
             self._shown[client.client_id] = shown
             self.frames += 1
 
     def _gaussians(self, t: float, motion: str) -> dict:
         if self._geometry is None or self._geometry[0] != (t, motion):
-            self._geometry = ((t, motion), geometry_at(self.model, self.state, t, motion))
+            self._geometry = ((t, motion), self.predictor.gaussians_at(t, motion))
         return self._geometry[1]
 
 
@@ -289,11 +288,11 @@ def serve(
     if not 8 <= int(width) <= 4096:
         raise RunError(f"--width {width}: the rendered image width must be 8-4096 pixels")
     loaded = load_run(run, device)
-    t_max = float(loaded.state.t_max)
+    t_max = loaded.predictor.t_max
     t_end = 2.0 * t_max if t_end is None else float(t_end)
     if not (math.isfinite(t_end) and t_end > 0):
         raise RunError(f"--t-end {t_end}: the time slider's end must be a positive number")
-    check_time(t_end, t_max, "--t-end")  # the limit every command renders to
+    loaded.predictor.check_time(t_end, "--t-end")  # the limit every command renders to
     cameras = dataset_cameras(Path(data or loaded.config.data), loaded.config.downscale)
     import viser  # here: the other commands do not need the web server
 
