@@ -56,15 +56,16 @@ def trainer_at(run: Path, work: Path, step_fraction: float, data: Path | None = 
     for key, value in settings.items():  # read per step: changed after the resume's settings check
         section, _, name = key.rpartition(".")
         setattr(getattr(trainer.cfg, section) if section else trainer.cfg, name, value)
-    trainer.views_per_step = trainer.cfg.stage2.views_per_step  # (the scene has that many cameras a time)
-    trainer.step = int(step_fraction * trainer.total_steps)
+    # (the scene has that many cameras a time)
+    trainer.sampler.views_per_step = trainer.cfg.stage2.views_per_step
+    trainer.state.step = int(step_fraction * trainer.total_steps)
     return trainer
 
 
 def time_steps(trainer: Trainer, steps: int, threads: ThreadPolicy | None = None) -> dict:
     for _ in range(10):
         trainer.train_step()
-    trainer.timings.clear()
+    trainer.state.timings.clear()
     start = time.perf_counter()
     for _ in range(steps):
         if threads is not None:
@@ -73,7 +74,7 @@ def time_steps(trainer: Trainer, steps: int, threads: ThreadPolicy | None = None
     ms = 1000 * (time.perf_counter() - start) / steps
     return {
         "ms_per_step": round(ms, 2),
-        **{k: round(1000 * v / steps, 2) for k, v in trainer.timings.items()},
+        **{k: round(1000 * v / steps, 2) for k, v in trainer.state.timings.items()},
     }
 
 

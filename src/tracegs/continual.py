@@ -103,8 +103,7 @@ def train_continual(
     for k, (observed, predicted) in enumerate(round_ends(times, plan)):
         rc = round_config(cfg, k, observed, plan)
         start = time.perf_counter()
-        trainer = Trainer(rc, progress=progress, warm_start=previous)
-        summary = trainer.train()
+        summary = Trainer(rc, progress=progress, warm_start=previous).train()
         train_s = time.perf_counter() - start
         scores = evaluate_run(rc.run, with_lpips=with_lpips, save_images=False, horizon_end=predicted)
         future = scores["extrapolation"]
@@ -115,7 +114,7 @@ def train_continual(
                 "extrapolated_until": round(predicted, 6),
                 "frames": future.get("frames", 0),
                 **{key: future[key] for key in ("psnr", "mae_psnr", "ssim", "lpips_vgg") if key in future},
-                "steps": summary.get("iterations", trainer.step),
+                "steps": summary["iterations"],
                 "wall_s": round(train_s, 1),
             }
         )

@@ -42,7 +42,7 @@ def test_outside_the_swept_region_the_gaussians_stand_still(capture, tmp_path): 
     inside = in_any_hull(capture, frames, means)
     assert mask is not None and bool(inside.any()) and bool(mask.any())
     assert not bool((mask & inside).any())  # nothing inside the region the ball sweeps stands still
-    assert trainer.static_fraction == float(mask.float().mean())
+    assert trainer.state.static_fraction == float(mask.float().mean())
 
 
 def test_the_near_plane_leaves_out_what_is_nearer(capture, tmp_path):  # noqa: F811

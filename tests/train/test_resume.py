@@ -73,7 +73,7 @@ if where == "densify":
 elif where == "step":
     step = T.Trainer.train_step
     def killing_step(self):
-        if self.step == at:
+        if self.state.step == at:
             die()
         return step(self)
     T.Trainer.train_step = killing_step
@@ -224,7 +224,7 @@ def test_a_run_killed_anywhere_resumes_to_the_same_parameters(
         assert not (run / EXTRAPOLATION).exists()
         monkeypatch.setattr(Trainer, "train_step", lambda self: pytest.fail("trained a step again"))
     resumed = Trainer(make_config("tiny", **settings(scene, run)), progress=False)
-    assert resumed.step == resumes_at
+    assert resumed.state.step == resumes_at
     resumed.train()
     assert not list(run.glob(".checkpoint.pt.*.tmp"))
     assert_same_run(run, reference)
@@ -237,7 +237,7 @@ def test_ctrl_c_saves_the_step_reached_and_the_run_resumes_exactly(
     step = Trainer.train_step
 
     def interrupted(self):
-        if self.step == 7:  # the signal comes during step 7: the step ends, then the run stops
+        if self.state.step == 7:  # the signal comes during step 7: the step ends, then the run stops
             os.kill(os.getpid(), signal.SIGINT)
         return step(self)
 
@@ -261,7 +261,7 @@ def test_a_keyboard_interrupt_saves_a_whole_step(scene, reference, tmp_path, one
         step = Trainer.train_step
 
         def interrupted_before(self):
-            if self.step == 5:
+            if self.state.step == 5:
                 raise KeyboardInterrupt
             return step(self)
 
@@ -294,7 +294,7 @@ def inject_nan(monkeypatch, steps: set[int]) -> list[int]:
 
     def poisoned(*args, **kwargs):
         losses = loss(*args, **kwargs)
-        now = trainers[0].step
+        now = trainers[0].state.step
         if now in steps and now not in hit:
             hit.append(now)
             losses["loss"] = losses["loss"] * float("nan")
@@ -311,15 +311,16 @@ def test_the_nan_guard_restores_the_last_good_state_with_lower_learning_rates(
     hit = inject_nan(monkeypatch, {5})
     trainer = train(scene, tmp_path / "run")
     assert hit == [5]
-    assert trainer.restorations == [{"step": 5, "to_step": 3, "what": "loss"}]
-    assert trainer.lr_scale == 0.5 and trainer.step == TOTAL
+    state = trainer.state
+    assert state.restorations == [{"step": 5, "to_step": 3, "what": "loss"}]
+    assert state.lr_scale == 0.5 and state.step == TOTAL
     optim = trainer.cfg.optim
-    assert trainer.optimizers["quats"].param_groups[0]["lr"] == 0.5 * optim.quat_lr
+    assert state.optimizers["quats"].param_groups[0]["lr"] == 0.5 * optim.quat_lr
     assert all(torch.isfinite(p).all() for p in trainer.model.parameters())
     steps = [s for s, _ in logged(tmp_path / "run")]
     assert steps == list(range(1, TOTAL + 1))  # the steps after the restored state are logged once
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
-    assert summary["nan_restorations"] == trainer.restorations
+    assert summary["nan_restorations"] == state.restorations
     # the lowered rates are part of the checkpoint: a resumed run keeps them
     assert load_tensors(tmp_path / "run" / CHECKPOINT)["lr_scale"] == 0.5
 
@@ -337,7 +338,7 @@ def test_a_parameter_gone_non_finite_is_caught_before_it_is_saved(scene, tmp_pat
 
     monkeypatch.setattr(trainer_module.DefaultStrategy, "step_post_backward", corrupting)
     trainer = train(scene, tmp_path / "run")
-    assert trainer.restorations == [{"step": 6, "to_step": 3, "what": "parameters"}]
+    assert trainer.state.restorations == [{"step": 6, "to_step": 3, "what": "parameters"}]
     assert all(torch.isfinite(p).all() for p in trainer.model.parameters())
 
 
@@ -360,7 +361,7 @@ def test_a_second_training_into_a_running_run_folder_is_refused(scene, tmp_path)
             train(scene, run)
     assert not (run / CHECKPOINT).exists()
     (run / LOCK).write_text("pid 999999 on elsewhere\n")  # the file of a process long gone: no lock
-    assert train(scene, run).step == TOTAL
+    assert train(scene, run).state.step == TOTAL
 
 
 def test_a_run_folder_trained_on_other_images_is_refused_and_a_moved_scene_resumes(scene, tmp_path):
@@ -372,7 +373,9 @@ def test_a_run_folder_trained_on_other_images_is_refused_and_a_moved_scene_resum
     train(scene, run, static_iterations=2, dynamic_iterations=2)
     moved = shutil.copytree(scene, tmp_path / "moved")
     assert (
-        Trainer(make_config("tiny", **settings(moved, run, static_iterations=2, dynamic_iterations=2))).step
+        Trainer(
+            make_config("tiny", **settings(moved, run, static_iterations=2, dynamic_iterations=2))
+        ).state.step
         == 4
     )
     image = moved / "train" / "c0_f0.png"

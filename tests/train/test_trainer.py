@@ -82,7 +82,7 @@ def test_resume_continues_from_checkpoint(tiny_scene, tmp_path, device):
         trainer.train_step()
     trainer.save()
     resumed = Trainer(cfg, progress=False)
-    assert resumed.step == 3
+    assert resumed.state.step == 3
     for name in ("means", "sh0"):
         assert torch.equal(resumed.model.gaussians[name], trainer.model.gaussians[name])
     assert resumed.train()["iterations"] == 4
@@ -102,7 +102,7 @@ def test_a_failed_calibration_keeps_the_last_steps(tiny_scene, tmp_path, monkeyp
         Trainer(cfg, progress=False).train()
     monkeypatch.undo()
     resumed = Trainer(cfg, progress=False)
-    assert resumed.step == cfg.total_iterations
+    assert resumed.state.step == cfg.total_iterations
     assert resumed.train()["iterations"] == cfg.total_iterations  # calibrates and writes the summary
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["tracegs"] == tracegs.__version__ and "cores" in summary["machine"]
@@ -116,13 +116,15 @@ def test_resume_refuses_a_checkpoint_trained_with_other_settings(tiny_scene, tmp
     with pytest.raises(ValueError, match=r"checkpoint\.pt.*stage2\.dt_frames"):
         Trainer(apply_overrides(cfg, {"stage2.dt_frames": 3.0}), progress=False)
     # where things are written is not a training setting, nor is the machine's arithmetic (bf16)
-    assert Trainer(apply_overrides(cfg, {"checkpoint_every": 7, "log_every": 3}), progress=False).step == 1
-    assert Trainer(apply_overrides(cfg, {"bf16": not cfg.bf16}), progress=False).step == 1
+    assert (
+        Trainer(apply_overrides(cfg, {"checkpoint_every": 7, "log_every": 3}), progress=False).state.step == 1
+    )
+    assert Trainer(apply_overrides(cfg, {"bf16": not cfg.bf16}), progress=False).state.step == 1
     # a checkpoint from before a setting existed resumes when the setting keeps its default
     ckpt = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)
     del ckpt["config"]["stage2"]["skip_static"]
     torch.save(ckpt, tmp_path / "run" / "checkpoint.pt")
-    assert Trainer(apply_overrides(cfg, {"stage2.skip_static": False}), progress=False).step == 1
+    assert Trainer(apply_overrides(cfg, {"stage2.skip_static": False}), progress=False).state.step == 1
     with pytest.raises(ValueError, match=r"stage2\.skip_static"):
         Trainer(apply_overrides(cfg, {"stage2.skip_static": True}), progress=False)
     # a checkpoint with a setting this version does not know names the file
@@ -147,7 +149,7 @@ def test_a_finished_run_takes_new_render_time_settings_without_retraining(tiny_s
         },
     )
     again = Trainer(changed, progress=False)
-    assert again.step == cfg.total_iterations
+    assert again.state.step == cfg.total_iterations
     assert again.extrapolation is None  # not the old choices
     assert again.train()["iterations"] == cfg.total_iterations
     assert again.extrapolation.freeze_threshold is None and again.extrapolation.unseen is None
@@ -260,14 +262,16 @@ def test_consistency_time_goes_the_way_of_t_and_turns_back_at_the_limit(tiny_sce
     )
     dt = trainer.dt_frame
     limit = 30 * dt  # consistency_frames = 3: the span is 3 dt
-    assert trainer._consistency_time(3 * dt, 4 * dt, limit) == pytest.approx(6 * dt)  # t' + span
-    assert trainer._consistency_time(15 * dt, 14 * dt, limit) == pytest.approx(12 * dt)  # t' - span
-    assert trainer._consistency_time(29 * dt, 30 * dt, limit) == pytest.approx(26 * dt)  # past the limit
-    assert trainer._consistency_time(2 * dt, dt, limit) == pytest.approx(5 * dt)  # before 0
+    assert trainer.sampler.consistency_time(3 * dt, 4 * dt, limit) == pytest.approx(6 * dt)  # t' + span
+    assert trainer.sampler.consistency_time(15 * dt, 14 * dt, limit) == pytest.approx(12 * dt)  # t' - span
+    assert trainer.sampler.consistency_time(29 * dt, 30 * dt, limit) == pytest.approx(
+        26 * dt
+    )  # past the limit
+    assert trainer.sampler.consistency_time(2 * dt, dt, limit) == pytest.approx(5 * dt)  # before 0
     off = Trainer(
         _cfg(tiny_scene, tmp_path / "off", settings={"stage2.consistency_frames": 0.0}), progress=False
     )
-    assert off._consistency_time(3 * dt, 4 * dt, limit) == 4 * dt
+    assert off.sampler.consistency_time(3 * dt, 4 * dt, limit) == 4 * dt
 
 
 @pytest.mark.parametrize("stages", [1, 4, 8])
@@ -286,9 +290,9 @@ def test_time_range_grows_in_equal_stages(tiny_scene, tmp_path, stages):
     t_max, per_stage = trainer.t_max, 400 / stages
     for k in range(1, stages + 1):
         for dyn_step in (math.ceil((k - 1) * per_stage), math.ceil(k * per_stage) - 1):
-            assert trainer.time_limit(dyn_step) == pytest.approx(t_max * k / stages)
-    assert trainer.time_limit(400) == trainer.time_limit(999) == pytest.approx(t_max)
-    seen = {trainer.data.views[trainer._dynamic_view(0)].time for _ in range(200)}
+            assert trainer.sampler.time_limit(dyn_step) == pytest.approx(t_max * k / stages)
+    assert trainer.sampler.time_limit(400) == trainer.sampler.time_limit(999) == pytest.approx(t_max)
+    seen = {trainer.data.views[trainer.sampler.dynamic_view(0)].time for _ in range(200)}
     assert max(seen) <= t_max / stages + 1e-9 and min(seen) == 0.0
     with pytest.raises(ValueError, match="time.growth.stages"):
         Trainer(_cfg(tiny_scene, tmp_path / "bad", settings={"stage2.time_growth_stages": 0}), progress=False)
@@ -331,7 +335,7 @@ def test_hexplane_regularisers_join_the_dynamic_loss(tiny_scene, tmp_path):
     trainer = Trainer(cfg, progress=False)
     static = trainer.train_step()  # stage 1: photometric loss only
     assert "plane_tv" not in static
-    trainer.step = cfg.static_iterations
+    trainer.state.step = cfg.static_iterations
     stats = trainer.train_step()
     terms = ("plane_tv", "time_smoothness", "time_l1")
     assert all(stats[k] >= 0 for k in terms) and stats["plane_tv"] > 0  # random spatial planes: TV > 0
@@ -349,7 +353,7 @@ def test_hexplane_box_holds_the_whole_scene_in_the_dynamic_stage(tiny_scene, tmp
         means.mul_(3.0)
     box = trainer.model.deformation.grid.aabb
     before = box.clone()
-    trainer.step = cfg.static_iterations
+    trainer.state.step = cfg.static_iterations
     trainer.train_step()
     inside = ((means >= box[0]) & (means <= box[1])).all(dim=1).float().mean()
     assert inside > 0.99
@@ -359,9 +363,9 @@ def test_hexplane_box_holds_the_whole_scene_in_the_dynamic_stage(tiny_scene, tmp
 def test_hexplane_planes_train_with_their_own_rate(tiny_scene, tmp_path):
     cfg = _cfg(tiny_scene, tmp_path / "run", settings={"deformation.kind": "hexplane"})
     trainer = Trainer(cfg, progress=False)
-    trainer.step = cfg.static_iterations
+    trainer.state.step = cfg.static_iterations
     trainer.train_step()
-    groups = {g["name"]: g for g in trainer.field_opt.param_groups}
+    groups = {g["name"]: g for g in trainer.state.field_opt.param_groups}
     grid = {id(p) for p in trainer.model.deformation.grid.parameters()}
     assert {id(p) for p in groups["grid"]["params"]} == grid
     assert not grid & {id(p) for p in groups["fields"]["params"]}
@@ -445,14 +449,14 @@ def test_skip_static_marks_by_displacement_and_is_kept_in_the_checkpoint(tiny_sc
     trainer = Trainer(cfg, progress=False)
     marking = trainer._static_marking_step()
     assert marking == max(trainer.strategy.refine_stop, cfg.static_iterations + 1)
-    while trainer.step <= marking:
-        assert (trainer.model.static_mask is None) == (trainer.step <= marking)
+    while trainer.state.step <= marking:
+        assert (trainer.model.static_mask is None) == (trainer.state.step <= marking)
         trainer.train_step()
     mask = trainer.model.static_mask
-    assert mask is not None and trainer.static_fraction == pytest.approx(float(mask.float().mean()))
+    assert mask is not None and trainer.state.static_fraction == pytest.approx(float(mask.float().mean()))
     trainer.save()
     assert torch.equal(Trainer(cfg, progress=False).model.static_mask, mask)  # resumed
-    assert Trainer(cfg, progress=False).train()["static_fraction"] == trainer.static_fraction
+    assert Trainer(cfg, progress=False).train()["static_fraction"] == trainer.state.static_fraction
     assert torch.equal(load_run(tmp_path / "run", device="cpu").model.static_mask, mask)
 
 

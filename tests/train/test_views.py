@@ -9,6 +9,7 @@ import torch
 from tests.conftest import write_tiny_scene
 
 from tracegs.config import make_config
+from tracegs.train.optim import zero_grads
 from tracegs.train.trainer import Trainer
 
 
@@ -24,7 +25,7 @@ def _trainer(scene, run, views_per_step: int, **settings) -> Trainer:
 def _gradients(trainer: Trainer, views, t_prime: float) -> dict[str, torch.Tensor]:
     """The gradients of every parameter (Gaussians and fields) of the loss of ``views`` rendered at
     their time from Gaussians carried there from ``t_prime``."""
-    trainer._zero_grads()
+    zero_grads(trainer.state.all_optimizers())
     state, _ = trainer.model.training_state(t_prime, views[0].time)
     losses, _ = trainer.views_loss(state, views, trainer.data.background)
     losses["loss"].backward()
@@ -43,7 +44,7 @@ def test_a_batch_of_views_has_the_mean_gradient_of_its_single_views(tiny_scene, 
         for p in trainer.model.field_parameters():
             p.add_(0.05 * torch.randn_like(p))
     index = next(i for i, v in enumerate(trainer.data.views) if v.time > 0)
-    views = trainer._views_at_time(index)
+    views = trainer.sampler.views_at_time(index)
     assert len(views) == 3 and len({v.camera_id for v in views}) == 3
     assert {v.time for v in views} == {views[0].time}
     t_prime = 0.0
@@ -59,23 +60,23 @@ def test_a_batch_of_views_has_the_mean_gradient_of_its_single_views(tiny_scene, 
 def test_views_of_a_time_are_other_cameras_and_fewer_where_fewer_saw_it(tiny_scene, tmp_path):
     trainer = _trainer(tiny_scene, tmp_path / "run", views_per_step=5)
     for index, view in enumerate(trainer.data.views):
-        views = trainer._views_at_time(index)
+        views = trainer.sampler.views_at_time(index)
         assert views[0] is view
         assert len(views) == 3  # the tiny scene's 3 training cameras per time
         assert {v.time for v in views} == {view.time}
     one = _trainer(tiny_scene, tmp_path / "one", views_per_step=1)
-    assert [v.name for v in one._views_at_time(2)] == [one.data.views[2].name]
+    assert [v.name for v in one.sampler.views_at_time(2)] == [one.data.views[2].name]
 
 
 def test_training_with_a_batch_of_views_counts_each_view_for_densification(tiny_scene, tmp_path):
     trainer = _trainer(tiny_scene, tmp_path / "run", views_per_step=2)
     trainer.cfg.densify = dataclasses.replace(trainer.cfg.densify, refine_start=100, reset_every=0)
     trainer.strategy = type(trainer.strategy)(trainer.cfg.densify, trainer.extent, 100)
-    while trainer.step < trainer.cfg.static_iterations:
+    while trainer.state.step < trainer.cfg.static_iterations:
         trainer.train_step()
-    trainer.strategy_state = trainer.strategy.initialize_state()
+    trainer.state.strategy = trainer.strategy.initialize_state()
     trainer.train_step()  # one dynamic step, two views: every Gaussian is counted at most twice
-    counts = trainer.strategy_state["count"]
+    counts = trainer.state.strategy["count"]
     assert counts.max() == 2 and counts.min() >= 0
     summary = _trainer(tiny_scene, tmp_path / "full", views_per_step=2).train()
     log = [json.loads(line) for line in (tmp_path / "full" / "log.jsonl").read_text().splitlines()]
@@ -91,7 +92,7 @@ def test_views_per_step_must_be_positive(tiny_scene, tmp_path, bad):
 def test_a_monocular_video_gets_one_view_a_step_and_as_many_more_steps(tmp_path):
     mono = write_tiny_scene(tmp_path / "mono", n_cams=2)  # one training camera per time
     trainer = _trainer(mono, tmp_path / "run", views_per_step=4)
-    assert trainer.views_per_step == 1
+    assert trainer.sampler.views_per_step == 1
     assert trainer.dynamic_steps == 4 * 3 and trainer.total_steps == 2 + 12
     multi = _trainer(write_tiny_scene(tmp_path / "multi"), tmp_path / "run2", views_per_step=4)
-    assert multi.views_per_step == 3 and multi.dynamic_steps == 4  # ceil(3 x 4 / 3)
+    assert multi.sampler.views_per_step == 3 and multi.dynamic_steps == 4  # ceil(3 x 4 / 3)

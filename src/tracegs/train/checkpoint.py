@@ -1,4 +1,4 @@
-"""What a training checkpoint holds, and how a trainer is restored from it.
+"""What a training checkpoint holds (the model and the ``TrainState``), and how training resumes from it.
 
 A checkpoint holds everything the next steps depend on: the model, the optimisers, the densification
 statistics, every random state, the NaN guard's learning-rate scale, the settings and a fingerprint of
@@ -12,27 +12,16 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-from collections import defaultdict
 from pathlib import Path
 
 import torch
-from tqdm import tqdm
 
-from ..config import TrainConfig, config_to_dict
+from ..config import OptimConfig, TrainConfig, config_to_dict
 from ..data.dataset import ViewDataset
-from ..run import (
-    CHECKPOINT,
-    LOG,
-    RunError,
-    TrainingDiverged,
-    changed_settings,
-    gaussians_of,
-    load_tensors,
-    training_changes,
-    truncate_log,
-)
-from ..utils import atomic_write_bytes, random_states, set_random_states
-from .optim import colour_optimizer, gaussian_optimizers
+from ..run import RunError, changed_settings, gaussians_of, load_tensors, training_changes
+from ..utils import atomic_write_bytes
+from .state import TrainState
+from .strategy import DefaultStrategy
 
 
 def training_fingerprint(data: ViewDataset) -> str:
@@ -73,69 +62,50 @@ def check_resumable(ckpt: dict, cfg: TrainConfig, fingerprint: str, path: Path) 
     return changed
 
 
-def trainer_state(trainer) -> dict:
-    """Everything the next steps of ``trainer`` depend on, as tensors and plain data (read back with
-    ``torch.load(weights_only=True)``)."""
-    model = trainer.model
+def checkpoint(
+    state: TrainState, model, cfg: TrainConfig, fingerprint: str, t_max: float, device: torch.device
+) -> dict:
+    """Everything the next steps depend on: ``state`` (``TrainState.state_dict``) with ``model``, the
+    settings and the images' fingerprint, as tensors and plain data (read back with
+    ``torch.load(weights_only=True)``; ``run.py`` reads "model", "step", "train_seconds", "t_max" and
+    "static_mask")."""
+    saved = state.state_dict(device)
     return {
-        "step": trainer.step,
-        "train_seconds": trainer.train_seconds,
-        "timings": dict(trainer.timings),
-        "config": config_to_dict(trainer.cfg),
-        "data_fingerprint": trainer.fingerprint,
-        "t_max": trainer.t_max,
+        "step": saved.pop("step"),
+        "train_seconds": saved.pop("train_seconds"),
+        "timings": saved.pop("timings"),
+        "config": config_to_dict(cfg),
+        "data_fingerprint": fingerprint,
+        "t_max": t_max,
         "static_mask": model.static_mask,
         "model": model.state_dict(),
-        "optimizers": {k: o.state_dict() for k, o in trainer.optimizers.items()},
-        "field_optimizer": trainer.field_opt.state_dict() if trainer.field_opt is not None else None,
-        "colour_optimizer": trainer.colour_opt.state_dict() if trainer.colour_opt is not None else None,
-        "strategy": dict(trainer.strategy_state),
-        "lr_scale": trainer.lr_scale,
-        "restorations": list(trainer.restorations),
-        "rng": random_states(trainer.device) | {"generator": trainer.generator.get_state()},
+        **saved,
     }
 
 
-def restore_trainer_state(trainer, ckpt: dict) -> None:
-    """Put ``trainer`` in the state ``trainer_state`` saved; parts that checkpoints of earlier versions
-    lack (densification statistics, NumPy's random state, the learning-rate scale) start afresh."""
-    model = trainer.model
+def load_model(model, ckpt: dict) -> None:
+    """Put ``model`` as the checkpoint ``ckpt`` ended (Gaussians, fields, per-camera colours)."""
     model.gaussians = gaussians_of(ckpt["model"])
     model.load_state_dict(ckpt["model"])
-    trainer.optimizers = gaussian_optimizers(model.gaussians, trainer.cfg.optim, trainer.extent)
-    for k, o in trainer.optimizers.items():
-        o.load_state_dict(ckpt["optimizers"][k])
-    if trainer.field_opt is not None and ckpt["field_optimizer"] is not None:
-        trainer.field_opt.load_state_dict(ckpt["field_optimizer"])
-    if trainer.colour_opt is not None:  # (made again: loading the model may resize the colours)
-        trainer.colour_opt = colour_optimizer(model.camera_colour, trainer.cfg.optim)
-        if ckpt.get("colour_optimizer") is not None:
-            trainer.colour_opt.load_state_dict(ckpt["colour_optimizer"])
-    trainer.strategy_state = trainer.strategy.initialize_state() | ckpt.get("strategy", {})
-    trainer.step, trainer.train_seconds = ckpt["step"], ckpt["train_seconds"]
-    trainer.lr_scale = float(ckpt.get("lr_scale", 1.0))
-    trainer.restorations = list(ckpt.get("restorations", []))
+
+
+def restore(
+    ckpt: dict, model, optim: OptimConfig, extent: float, strategy: DefaultStrategy, generator, device
+) -> TrainState:
+    """``model`` and the training state as ``checkpoint`` saved them (``TrainState.load_state_dict``)."""
+    load_model(model, ckpt)
     model.set_static_mask(ckpt.get("static_mask"))
-    mask = model.static_mask
-    trainer.static_fraction = None if mask is None else float(mask.float().mean())
-    trainer.timings = defaultdict(float, ckpt.get("timings", {}))
-    set_random_states(ckpt["rng"], trainer.device)
-    if "generator" in ckpt["rng"]:
-        trainer.generator.set_state(ckpt["rng"]["generator"].cpu())
+    state = TrainState.start(model, optim, extent, strategy, generator)
+    state.load_state_dict(ckpt, device, model.static_mask)
+    return state
 
 
-def start_from(trainer, path: Path) -> None:
-    """Start ``trainer``'s model as the checkpoint ``path`` ended (Gaussians, fields, per-camera
-    colours), with fresh optimisers and statistics: a continual round goes on from the last one."""
+def start_from(model, path: Path, device: torch.device) -> None:
+    """Start ``model`` as the checkpoint ``path`` ended (its optimisers and statistics start afresh):
+    a continual round goes on from the last one."""
     if not path.is_file():
         raise RunError(f"{path}: no checkpoint to start from (the previous round has not trained)")
-    ckpt = load_tensors(path, trainer.device)
-    model = trainer.model
-    model.gaussians = gaussians_of(ckpt["model"])
-    model.load_state_dict(ckpt["model"])
-    trainer.optimizers = gaussian_optimizers(model.gaussians, trainer.cfg.optim, trainer.extent)
-    trainer.colour_opt = colour_optimizer(model.camera_colour, trainer.cfg.optim)
-    trainer.strategy_state = trainer.strategy.initialize_state()
+    load_model(model, load_tensors(path, device))
 
 
 class Checkpoints:
@@ -162,26 +132,3 @@ class Checkpoints:
 
     def last_good(self, device: torch.device) -> dict:
         return torch.load(io.BytesIO(self.good), map_location=device, weights_only=True)
-
-
-def restore_after(trainer, err) -> None:
-    """The NaN guard after ``err`` (``guard.NonFinite``): back to the last good state with the learning
-    rates times ``optim.nan_lr_factor``; the second time, that state is saved and ``TrainingDiverged``
-    raised."""
-    factor = trainer.cfg.optim.nan_lr_factor
-    lr_scale, restorations, seconds = trainer.lr_scale, trainer.restorations, trainer.train_seconds
-    restore_trainer_state(trainer, trainer.checkpoints.last_good(trainer.device))
-    trainer.train_seconds = seconds  # the time spent is spent
-    truncate_log(trainer.run / LOG, trainer.step)
-    if restorations:
-        trainer.save()
-        first = restorations[0]
-        raise TrainingDiverged(
-            f"{trainer.run}: training diverged: {err} after the {first['what']} at step {first['step']} "
-            f"had restored step {first['to_step']} with the learning rates x{factor}; "
-            f"{trainer.run / CHECKPOINT} keeps step {trainer.step}, the last good state"
-        )
-    trainer.lr_scale = lr_scale * factor
-    trainer.restorations = [*restorations, {"step": err.step, "to_step": trainer.step, "what": err.what}]
-    if trainer.progress:
-        tqdm.write(f"{err}: restored step {trainer.step}, learning rates x{factor}")

@@ -13,39 +13,42 @@ continual round sees no later mask)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import torch
+
 from ..data.hull import in_any_hull
 from ..models.trace import near_points
 
 
-def mark_outside_masks(trainer, log=print) -> float | None:
-    """Mark static the Gaussians of ``trainer``'s model outside the region its training masks sweep
+def mark_outside_masks(model, data: Path, frames: list, margin: float, log=print) -> float | None:
+    """Mark static the Gaussians of ``model`` outside the region the masks of the scene ``data`` at
+    ``frames`` (those of the training window) sweep, and not within ``margin`` spacings of one inside
     (module docstring); the fraction marked, or None (nothing marked) when the scene has no masks."""
-    cfg, model = trainer.cfg, trainer.model
-    frames = [f for f in trainer.data.scene.frames if f.time <= trainer.t_max + 1e-9]
     means = model.gaussians["means"].detach()
-    inside = in_any_hull(cfg.data, frames, means)
+    inside = in_any_hull(data, frames, means)
     if inside is None:
-        log(f"{cfg.data}: no foreground masks: stage2.static_outside_masks marks nothing")
+        log(f"{data}: no foreground masks: stage2.static_outside_masks marks nothing")
         return None
     still = ~inside
-    if cfg.stage2.static_margin > 0 and bool(inside.any()):
-        still &= ~near_points(means, inside, cfg.stage2.static_margin)
+    if margin > 0 and bool(inside.any()):
+        still &= ~near_points(means, inside, margin)
     model.set_static_mask(still)
     fraction = float(still.float().mean())
     log(f"outside the region the foreground masks sweep: {fraction:.0%} of the Gaussians stand still")
     return fraction
 
 
-def hold_surroundings(trainer) -> None:
-    """Zero the gradients of every parameter of the Gaussians held static, and the first moments
-    their optimisers keep (once, when the mask is new): Adam then moves them no further."""
-    mask = trainer.model.static_mask
+def hold_surroundings(model, optimizers: dict[str, torch.optim.Optimizer]) -> None:
+    """Zero the gradients of every parameter of ``model``'s Gaussians held static, and the first
+    moments their ``optimizers`` keep (once, when the mask is new): Adam then moves them no further."""
+    mask = model.static_mask
     if mask is None:
         return
-    for name, param in trainer.model.gaussians.items():
+    for name, param in model.gaussians.items():
         if param.grad is not None:
             param.grad[mask] = 0
-        state = trainer.optimizers[name].state.get(param, {})
+        state = optimizers[name].state.get(param, {})
         if "exp_avg" in state and not state.get("held"):
             state["exp_avg"][mask] = 0
             state["held"] = True

@@ -93,3 +93,14 @@ def interrupt_at_step_end() -> Iterator[Interrupt]:
         yield interrupt
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def diverged(checkpoint, err: NonFinite, first: dict, factor: float, step: int) -> str:
+    """The message of a training stopped by the NaN guard's second restoration (``err``): the first
+    restoration ``first`` ({"step", "to_step", "what"}), the learning-rate ``factor`` it applied, and
+    the ``step`` the ``checkpoint`` keeps."""
+    return (
+        f"{checkpoint.parent}: training diverged: {err} after the {first['what']} at step {first['step']} "
+        f"had restored step {first['to_step']} with the learning rates x{factor}; "
+        f"{checkpoint} keeps step {step}, the last good state"
+    )

@@ -3,9 +3,14 @@ w = 0.2, over the step's views, and with ``optim.mask_weight`` a foreground-mask
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import torch
 
+from ..config import OptimConfig
+from ..data.dataset import ViewDataset
 from ..render.ssim import training_ssim
+from .strategy import DefaultStrategy
 
 
 def photometric_loss(
@@ -18,41 +23,58 @@ def photometric_loss(
     return {"l1": l1, "ssim": s.detach(), "loss": (1 - ssim_weight) * l1 + ssim_weight * (1 - s)}
 
 
-def views_loss(trainer, state: dict, views: list, background: torch.Tensor) -> tuple[dict, list[dict]]:
+def views_loss(
+    model,
+    state: dict,
+    views: list,
+    background: torch.Tensor,
+    sh_degree: int,
+    optim: OptimConfig,
+    strategy: DefaultStrategy,
+    targets: ViewDataset | None = None,
+    masks: ForegroundMasks | None = None,
+) -> tuple[dict, list[dict]]:
     """The loss terms of Gaussians ``state`` rendered from ``views`` (the mean over them; the fields'
-    state is shared) by ``trainer``'s model, and each view's render info for the densification. With
-    ``optim.mask_weight`` and Gaussians held static (the subject is the rest), the L1 between the
-    subject's own coverage and each view's foreground mask, where the view has one."""
-    cfg, model = trainer.cfg, trainer.model
+    state is shared) by ``model`` at ``sh_degree``, and each view's render info for ``strategy``'s
+    densification. ``targets``: the dataset whose images are composited on ``background`` (random-
+    background training), else each view's own image is the target. With ``optim.mask_weight`` and
+    Gaussians held static (the subject is the rest), the L1 between the subject's own coverage and each
+    view's foreground mask (of ``masks``), where the view has one."""
     infos, losses = [], {}
     for view in views:
-        target = trainer.data.target(view, background) if cfg.random_background else view.image
-        out = model.render(state, view.camera, trainer.sh_degree(), background)
+        target = targets.target(view, background) if targets is not None else view.image
+        out = model.render(state, view.camera, sh_degree, background)
         image = model.colour(out.image, view.camera_id)
         size = {"width": view.camera.width, "height": view.camera.height}
         infos.append({"means2d": out.means2d, "radii": out.radii, **size})
-        trainer.strategy.step_pre_backward(infos[-1])
-        terms = photometric_loss(image, target, cfg.optim.ssim_weight)
-        if cfg.optim.mask_weight > 0 and model.static_mask is not None:
-            mask = foreground_of(trainer, view)
+        strategy.step_pre_backward(infos[-1])
+        terms = photometric_loss(image, target, optim.ssim_weight)
+        if optim.mask_weight > 0 and model.static_mask is not None and masks is not None:
+            mask = masks(view)
             if mask is not None:
                 coverage = model.render(state, view.camera, 0, background, rows=model.moving_rows).alpha
                 terms["mask"] = (coverage[..., 0] - mask).abs().mean()
-                terms["loss"] = terms["loss"] + cfg.optim.mask_weight * terms["mask"]
+                terms["loss"] = terms["loss"] + optim.mask_weight * terms["mask"]
         for name, value in terms.items():
             value = value / len(views) if len(views) > 1 else value
             losses[name] = losses[name] + value if name in losses else value
     return losses, infos
 
 
-def foreground_of(trainer, view) -> torch.Tensor | None:
-    """[H, W] float foreground mask of ``view`` (read once, ``data.masks``), or None without one."""
-    cache = trainer.__dict__.setdefault("_masks", {})
-    if view.name not in cache:
-        from ..data.masks import read_foreground
+class ForegroundMasks:
+    """The foreground masks of a scene's views (``data.masks``), each read once."""
 
-        mask = None if view.frame is None else read_foreground(trainer.cfg.data, view.frame)
-        cache[view.name] = (
-            None if mask is None else torch.as_tensor(mask, dtype=torch.float32).to(view.image.device)
-        )
-    return cache[view.name]
+    def __init__(self, data: Path):
+        self.data = Path(data)
+        self._masks: dict[str, torch.Tensor | None] = {}
+
+    def __call__(self, view) -> torch.Tensor | None:
+        """[H, W] float foreground mask of ``view``, on its image's device, or None without one."""
+        if view.name not in self._masks:
+            from ..data.masks import read_foreground
+
+            mask = None if view.frame is None else read_foreground(self.data, view.frame)
+            self._masks[view.name] = (
+                None if mask is None else torch.as_tensor(mask, dtype=torch.float32).to(view.image.device)
+            )
+        return self._masks[view.name]

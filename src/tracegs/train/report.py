@@ -7,45 +7,53 @@ import json
 import math
 
 from .. import __version__
+from ..config import TrainConfig
+from ..data.dataset import ViewDataset
 from ..render.rendering import resolve_backend
 from ..results import current_commit, machine_description
+from .state import TrainState
 
 
-def stage(trainer) -> str:
-    """The stage of the next step, as the progress bar names it."""
-    if trainer.cfg.method == "static" or trainer.step < trainer.cfg.static_iterations:
+def stage(cfg: TrainConfig, step: int) -> str:
+    """The stage of step ``step``, as the progress bar names it."""
+    if cfg.method == "static" or step < cfg.static_iterations:
         return "stage 1 (static)"
-    return f"stage 2 ({trainer.cfg.method})"
+    return f"stage 2 ({cfg.method})"
 
 
-def report_step(trainer, stats: dict[str, float], bar, log) -> None:
-    """The progress bar's loss, Gaussian count and stage; a log line every ``log_every`` steps."""
-    n = trainer.model.gaussians["means"].shape[0]
-    bar.set_description(f"train {stage(trainer)}", refresh=False)
-    bar.set_postfix(loss=f"{stats['loss']:.4f}", gaussians=n, refresh=False)
+def report_step(
+    cfg: TrainConfig, state: TrainState, total_steps: int, gaussians: int, stats: dict[str, float], bar, log
+) -> None:
+    """The progress bar's loss, ``gaussians`` (their count) and stage after a step; a log line every
+    ``log_every`` steps and at the last one."""
+    step = state.step
+    bar.set_description(f"train {stage(cfg, step)}", refresh=False)
+    bar.set_postfix(loss=f"{stats['loss']:.4f}", gaussians=gaussians, refresh=False)
     bar.update(1)
-    if trainer.step % trainer.cfg.log_every == 0 or trainer.step == trainer.total_steps:
-        seconds = round(trainer.train_seconds, 2)  # training time so far, resumed runs included
-        log.write(json.dumps({"step": trainer.step, "gaussians": n, "seconds": seconds, **stats}) + "\n")
+    if step % cfg.log_every == 0 or step == total_steps:
+        seconds = round(state.train_seconds, 2)  # training time so far, resumed runs included
+        log.write(json.dumps({"step": step, "gaussians": gaussians, "seconds": seconds, **stats}) + "\n")
         log.flush()
 
 
-def describe(trainer) -> str:
-    """What this run trains, in a line or two (printed when training starts)."""
-    cfg, cam = trainer.cfg, trainer.data.views[0].camera
-    frame = "world frame" if trainer.model.fields_see_world else "cameras' frame"
+def describe(
+    cfg: TrainConfig, data: ViewDataset, model, t_max: float, total_steps: int, views_per_step: int, device
+) -> str:
+    """What the run of ``cfg`` trains, in a line or two (printed when training starts)."""
+    cam = data.views[0].camera
+    frame = "world frame" if model.fields_see_world else "cameras' frame"
     text = (
-        f"{cfg.method} ({cfg.preset}) on {len(trainer.data)} images of {cam.width}x{cam.height} px with "
-        f"t <= {trainer.t_max:.3g}, {trainer.total_steps} steps ({trainer.views_per_step} view(s) a step in "
-        f"stage 2) on {trainer.device} "
-        f"({resolve_backend(cfg.backend, trainer.device)} rasteriser, fields in the {frame})"
+        f"{cfg.method} ({cfg.preset}) on {len(data)} images of {cam.width}x{cam.height} px with "
+        f"t <= {t_max:.3g}, {total_steps} steps ({views_per_step} view(s) a step in "
+        f"stage 2) on {device} "
+        f"({resolve_backend(cfg.backend, device)} rasteriser, fields in the {frame})"
     )
-    if cfg.bf16 and not trainer.model.fields_bf16 and trainer.device.type == "cpu":
+    if cfg.bf16 and not model.fields_bf16 and device.type == "cpu":
         text += (
             "\n  note: the fields train in fp32, not bf16: this CPU has no bf16 products (AMX or AVX512-BF16)"
         )
     pixels = cam.width * cam.height
-    if trainer.device.type == "cpu" and cfg.preset == "cpu-fast" and pixels > 4 * 128 * 128:
+    if device.type == "cpu" and cfg.preset == "cpu-fast" and pixels > 4 * 128 * 128:
         factor = math.ceil(math.sqrt(pixels / (128 * 128)))
         text += (
             f"\n  note: {cam.width}x{cam.height} is {pixels / (128 * 128):.0f}x the pixels of the 128 px "
@@ -55,29 +63,32 @@ def describe(trainer) -> str:
     return text
 
 
-def summary(trainer) -> dict:
-    """What ``summary.json`` holds: the run's size, time, what the calibration chose, per-part timings,
-    and what trained it (the tracegs version, its git commit when run from a checkout, the machine)."""
-    steps, state = max(trainer.step, 1), trainer.extrapolation
+def summary(
+    cfg: TrainConfig, state: TrainState, model, t_max: float, extrapolation, device, threads=None
+) -> dict:
+    """What ``summary.json`` holds: the run's size, time, what the calibration chose (``extrapolation``,
+    None before it), per-part timings, and what trained it (the tracegs version, its git commit when run
+    from a checkout, the machine, the thread counts ``threads`` changed to)."""
+    steps, chosen = max(state.step, 1), extrapolation
     return {
-        "method": trainer.cfg.method,
-        "preset": trainer.cfg.preset,
-        "scene": str(trainer.cfg.data),
-        "iterations": trainer.step,
-        "gaussians": int(trainer.model.gaussians["means"].shape[0]),
-        "train_seconds": round(trainer.train_seconds, 2),
-        "t_max": trainer.t_max,
-        "freeze_threshold": state.freeze_threshold if state else None,
-        "freeze_psnr": state.report.get("freeze_psnr", {}) if state else {},
-        "static_fraction": trainer.static_fraction,
-        "free_bodies": state.report.get("free_bodies", []) if state else [],
-        "joint_laws": state.report.get("joint_laws", []) if state else [],
-        "nan_restorations": trainer.restorations,
-        "ms_per_iteration": {k: round(1000 * v / steps, 2) for k, v in trainer.timings.items()},
-        "device": str(trainer.device),
-        "threads": trainer.threads.changes if trainer.threads else [],
-        "rasteriser": resolve_backend(trainer.cfg.backend, trainer.device),
-        "fields_dtype": "bf16" if trainer.model.fields_bf16 else "fp32",
+        "method": cfg.method,
+        "preset": cfg.preset,
+        "scene": str(cfg.data),
+        "iterations": state.step,
+        "gaussians": int(model.gaussians["means"].shape[0]),
+        "train_seconds": round(state.train_seconds, 2),
+        "t_max": t_max,
+        "freeze_threshold": chosen.freeze_threshold if chosen else None,
+        "freeze_psnr": chosen.report.get("freeze_psnr", {}) if chosen else {},
+        "static_fraction": state.static_fraction,
+        "free_bodies": chosen.report.get("free_bodies", []) if chosen else [],
+        "joint_laws": chosen.report.get("joint_laws", []) if chosen else [],
+        "nan_restorations": state.restorations,
+        "ms_per_iteration": {k: round(1000 * v / steps, 2) for k, v in state.timings.items()},
+        "device": str(device),
+        "threads": threads.changes if threads else [],
+        "rasteriser": resolve_backend(cfg.backend, device),
+        "fields_dtype": "bf16" if model.fields_bf16 else "fp32",
         "tracegs": __version__,
         "commit": current_commit(),
         "machine": machine_description(),

@@ -13,10 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
-import random
 import time
-from collections import defaultdict
 from pathlib import Path
 
 import torch
@@ -36,6 +33,7 @@ from ..run import (
     LOG,
     SUMMARY,
     RunError,
+    TrainingDiverged,
     fields_in_bf16,
     load_extrapolation,
     load_tensors,
@@ -45,40 +43,25 @@ from ..run import (
     truncate_log,
 )
 from ..utils import atomic_write_text, remove_temporaries, resolve_device, seed_everything, synchronize
-from .checkpoint import (
-    Checkpoints,
-    check_resumable,
-    restore_after,
-    restore_trainer_state,
-    start_from,
-    trainer_state,
-    training_fingerprint,
-)
+from .checkpoint import Checkpoints, check_resumable, checkpoint, restore, start_from, training_fingerprint
 from .foreground import hold_surroundings, mark_outside_masks
-from .guard import NonFinite, check_parameters, check_step, interrupt_at_step_end
+from .guard import NonFinite, check_parameters, check_step, diverged, interrupt_at_step_end
 from .init import initial_gaussians
-from .losses import views_loss
-from .optim import (
-    colour_optimizer,
-    field_lrs,
-    field_optimizer,
-    gaussian_lrs,
-    gaussian_optimizers,
-    means_lr,
-    set_group_lrs,
-    set_lr,
-    step_adams,
-    zero_grads,
-)
+from .losses import ForegroundMasks, views_loss
+from .optim import field_lrs, gaussian_lrs, means_lr, set_group_lrs, set_lr, step_adams, zero_grads
 from .report import describe, report_step, stage, summary
+from .sampling import StepSampler, dynamic_steps, views_per_step
 from .scene_frame import capture_scale, default_aabb, field_frame
+from .state import TrainState
 from .strategy import DefaultStrategy
 from .threads import ThreadPolicy
 
 
 class Trainer:
     """Trains one run; ``Trainer(cfg).train()`` is what ``tracegs train`` does. A run folder that holds a
-    checkpoint is resumed from it (same settings and images); else ``warm_start``'s model is the start."""
+    checkpoint is resumed from it (same settings and images); else ``warm_start``'s model is the start.
+    What changes as it trains is ``state`` (``TrainState``, saved whole in the checkpoint); the rest
+    (settings, data, model, sampler, strategy) it composes and hands to the functions of ``train/``."""
 
     def __init__(self, cfg: TrainConfig, progress: bool = True, warm_start: Path | None = None):
         validate(cfg)
@@ -86,7 +69,7 @@ class Trainer:
         cfg = dataclasses.replace(cfg, data=Path(cfg.data).resolve(), run=Path(cfg.run).resolve())
         self.cfg, self.progress = cfg, progress
         self.device = resolve_device(cfg.device)
-        self.generator = seed_everything(cfg.seed)
+        generator = seed_everything(cfg.seed)
         self.run = cfg.run
         if self.run.exists() and not self.run.is_dir():
             raise RunError(f"{self.run}: not a folder; --run names the folder a run is written to")
@@ -110,9 +93,7 @@ class Trainer:
         self.dt_frame = frame_interval(times, self.data.scene.fps)
         self.extent = scene_extent_from_cameras(self.data.camera_centers())
         self.aabb = default_aabb(cfg, self.data).to(self.device)
-        self.static_views = self._static_views()
-        self._allowed: tuple = (None, [])  # the views of the current time range (``_dynamic_view``)
-        self.static_fraction: float | None = None  # of the Gaussians marked static (stage2.skip_static)
+        self.masks = ForegroundMasks(cfg.data)  # (read when the mask loss first needs them)
         log = tqdm.write if progress else (lambda _message: None)
         gaussians = initial_gaussians(cfg, self.aabb, self.device, log, self.data.scene.frames)
         cameras = sorted({v.camera_id for v in self.data.views if v.camera_id is not None})
@@ -120,106 +101,43 @@ class Trainer:
         self.model.bf16 = fields_in_bf16(cfg)  # (not cfg.bf16 alone: a config made on another CPU)
         self.model.set_field_frame(*field_frame(cfg, self.data))
         self.model.set_near_plane(cfg.near_plane * capture_scale(self.data))
-        self.optimizers = gaussian_optimizers(self.model.gaussians, cfg.optim, self.extent)
-        self.field_opt = field_optimizer(self.model.field_parameter_groups(), cfg.optim)
-        self.colour_opt = colour_optimizer(self.model.camera_colour, cfg.optim)
-        counts = sorted(len(v) for v in self.data.by_time().values())  # cameras per time
-        self.views_per_step = max(1, min(cfg.stage2.views_per_step, counts[len(counts) // 2]))
-        views = cfg.dynamic_iterations * cfg.stage2.views_per_step  # as many where fewer cameras saw a time
-        self.dynamic_steps = 0 if cfg.method == "static" else math.ceil(views / self.views_per_step)
+        per_step = views_per_step(self.data, cfg.stage2)
+        self.dynamic_steps = dynamic_steps(cfg.method, cfg.dynamic_iterations, cfg.stage2, per_step)
         self.total_steps = cfg.static_iterations + self.dynamic_steps
+        self.sampler = StepSampler(
+            self.data, cfg.stage2, self.dynamic_steps, per_step, self.t_max, self.dt_frame
+        )
         self.strategy = DefaultStrategy(cfg.densify, self.extent, self.total_steps)
-        self.strategy_state = self.strategy.initialize_state()
-        self.step, self.train_seconds = 0, 0.0
-        self.lr_scale = 1.0  # lowered by the NaN guard
-        self.restorations: list[dict] = []  # what the NaN guard restored: {"step", "to_step", "what"}
         self.extrapolation = None  # the post-training state (``extrapolate.calibrate``), once trained
-        self.timings: dict[str, float] = defaultdict(float)
         self.checkpoints = Checkpoints(self.run / CHECKPOINT)
         self._in_step = False  # while a step runs: an interrupt then leaves half a step
         self.threads: ThreadPolicy | None = None  # the thread counts of the steps this call trains
+        if warm_start is not None and not (self.run / CHECKPOINT).is_file():
+            # a continual round (``continual.py``) goes on from the last one's model
+            start_from(self.model, Path(warm_start) / CHECKPOINT, self.device)
+        self.state = TrainState.start(self.model, cfg.optim, self.extent, self.strategy, generator)
         if (self.run / CHECKPOINT).is_file():
             self._resume(self.run / CHECKPOINT)
-        elif warm_start is not None:  # a continual round (``continual.py``) goes on from the last one's model
-            start_from(self, Path(warm_start) / CHECKPOINT)
 
-    # ----- data ---------------------------------------------------------------------------------
-    def _static_views(self) -> list[int]:
-        """Stage 1 uses the images at the first time if at least 3 cameras saw it (multi-view
-        capture), else all training images (a monocular video has a single view per time)."""
-        t0 = min(v.time for v in self.data.views)
-        first = [i for i, v in enumerate(self.data.views) if abs(v.time - t0) < 1e-9]
-        return first if len(first) >= 3 else list(range(len(self.data)))
-
-    def time_limit(self, dyn_step: int) -> float:
-        """End of the sampled time range at a dynamic step: it grows in ``stage2.time_growth_stages``
-        equal steps over the first ``stage2.time_growth_fraction`` of the stage."""
-        growth = self.cfg.stage2.time_growth_fraction * self.dynamic_steps
-        stages = self.cfg.stage2.time_growth_stages
-        frac = 1.0 if growth <= 0 else min(1.0, (1 + (stages * dyn_step) // growth) / stages)
-        return self.t_max * frac
-
-    def _dynamic_view(self, dyn_step: int) -> int:
-        """A training image whose time lies in the current (growing) time range."""
-        limit = self.time_limit(dyn_step) + 1e-9
-        key = (limit, id(self.data), len(self.data.views))  # (the list changes with the time range only)
-        if self._allowed[0] != key:
-            self._allowed = (key, [i for i, v in enumerate(self.data.views) if v.time <= limit])
-        return random.choice(self._allowed[1])
-
-    def _views_at_time(self, index: int) -> list:
-        """View ``index`` and up to ``views_per_step`` - 1 other cameras' views at its time, at random."""
-        extra, chosen = self.views_per_step - 1, []
-        if extra > 0:  # (the one-view step looks up nothing)
-            others = self.data.same_time(index)
-            chosen = random.sample(others, min(extra, len(others)))
-        return [self.data[i] for i in [index, *chosen]]
-
-    def _t_prime(self, t: float) -> float:
-        """t' = t -/+ dt with a random sign, kept inside [0, t_max]."""
-        dt = self.cfg.stage2.dt_frames * self.dt_frame
-        sign = random.choice((-1.0, 1.0))
-        t_prime = t - sign * dt
-        if not 0.0 <= t_prime <= self.t_max:
-            t_prime = t + sign * dt
-        return min(max(t_prime, 0.0), self.t_max)
-
-    def _consistency_time(self, t_prime: float, t: float, limit: float) -> float:
-        """Where the acceleration consistency reads f_trd again: ``stage2.consistency_frames`` frame
-        intervals from t' in the direction of t (the other way where that leaves [0, ``limit``],
-        clamped), or t itself when the setting is 0."""
-        frames = self.cfg.stage2.consistency_frames
-        if frames <= 0 or t == t_prime:
-            return t
-        span = math.copysign(frames * self.dt_frame, t - t_prime)
-        t_check = t_prime + span
-        if not 0.0 <= t_check <= limit:
-            t_check = t_prime - span
-        return min(max(t_check, 0.0), max(limit, t))
-
+    # ----- one step -------------------------------------------------------------------------------
     def _static_marking_step(self) -> int:
         """Step at which ``stage2.skip_static`` marks the static Gaussians: densification has stopped
         (the set of Gaussians is final) and the sampled time range covers the training span."""
-        growth = math.ceil(self.cfg.stage2.time_growth_fraction * self.dynamic_steps)
-        return max(self.strategy.refine_stop, self.cfg.static_iterations + growth)
+        return max(self.strategy.refine_stop, self.cfg.static_iterations + self.sampler.growth_steps())
 
-    # ----- one step -------------------------------------------------------------------------------
     def _set_lrs(self, static: bool, step: int, dyn_step: int) -> None:
         """This step's learning rates (the schedules of ``optim.py``) times the NaN guard's ``lr_scale``."""
-        cfg, scale = self.cfg, self.lr_scale
+        cfg, scale = self.cfg, self.state.lr_scale
         lrs = gaussian_lrs(cfg.optim, self.extent)
         lrs["means"] = means_lr(cfg.optim, self.extent, step, self.total_steps)
-        for name, opt in self.optimizers.items():
+        for name, opt in self.state.optimizers.items():
             set_lr(opt, lrs[name] * scale)
         if not static:
             fields = field_lrs(cfg.optim, self.extent, dyn_step, self.dynamic_steps)
-            set_group_lrs(self.field_opt, {k: v * scale for k, v in fields.items()})
-
-    def _zero_grads(self) -> None:
-        zero_grads([*self.optimizers.values(), self.field_opt, self.colour_opt])
+            set_group_lrs(self.state.field_opt, {k: v * scale for k, v in fields.items()})
 
     def sh_degree(self) -> int:
-        return min(self.cfg.sh_degree, self.step // max(self.cfg.sh_degree_interval, 1))
+        return min(self.cfg.sh_degree, self.state.step // max(self.cfg.sh_degree_interval, 1))
 
     def _clock(self) -> float:
         """Wall time for the per-part timings; on CUDA after the queued kernels finish (their own time)."""
@@ -239,38 +157,51 @@ class Trainer:
 
     def views_loss(self, state: dict, views: list, background: torch.Tensor) -> tuple[dict, list[dict]]:
         """The loss terms of Gaussians ``state`` rendered from ``views`` (``losses.views_loss``)."""
-        return views_loss(self, state, views, background)
+        targets = self.data if self.cfg.random_background else None
+        optim, strategy = self.cfg.optim, self.strategy
+        return views_loss(
+            self.model, state, views, background, self.sh_degree(), optim, strategy, targets, self.masks
+        )
+
+    def _mark_static(self, step: int, dyn_step: int) -> None:
+        """Hold the surroundings static where stage 2 starts (``stage2.static_outside_masks``), and the
+        Gaussians that hardly move at ``_static_marking_step`` (``stage2.skip_static``)."""
+        cfg, model = self.cfg, self.model
+        if dyn_step == 0 and cfg.stage2.static_outside_masks:
+            frames = [f for f in self.data.scene.frames if f.time <= self.t_max + 1e-9]
+            log = tqdm.write if self.progress else len
+            margin = cfg.stage2.static_margin
+            self.state.static_fraction = mark_outside_masks(model, cfg.data, frames, margin, log)
+        if cfg.stage2.skip_static and model.static_mask is None and step == self._static_marking_step():
+            threshold = cfg.stage2.static_displacement * self.extent
+            self.state.static_fraction = model.mark_static(
+                threshold, self.t_max, margin=cfg.stage2.static_margin
+            )
 
     def _step(self) -> dict[str, float]:
-        cfg, step = self.cfg, self.step
+        cfg, state, sampler = self.cfg, self.state, self.sampler
+        step = state.step
         static = step < cfg.static_iterations or cfg.method == "static"
         dyn_step = step - cfg.static_iterations
         self._set_lrs(static, step, dyn_step)
 
         t_start = self._clock()
         if static:
-            views = [self.data[random.choice(self.static_views)]]
+            views = [self.data[sampler.static_view()]]
             g = self.model.gaussians
-            state = {"means": g["means"], "quats": g["quats"], "scales": g["scales"]}
+            gaussians = {"means": g["means"], "quats": g["quats"], "scales": g["scales"]}
         else:
             if dyn_step == 0:
                 self.model.begin_dynamic_stage()
-                if cfg.stage2.static_outside_masks:
-                    self.static_fraction = mark_outside_masks(self, tqdm.write if self.progress else len)
-            skip = cfg.stage2.skip_static
-            if skip and self.model.static_mask is None and step == self._static_marking_step():
-                threshold = cfg.stage2.static_displacement * self.extent
-                self.static_fraction = self.model.mark_static(
-                    threshold, self.t_max, margin=cfg.stage2.static_margin
-                )
-            views = self._views_at_time(self._dynamic_view(dyn_step))
+            self._mark_static(step, dyn_step)
+            views = sampler.views_at_time(sampler.dynamic_view(dyn_step))
             view = views[0]
-            t_prime = self._t_prime(view.time)
-            t_check = self._consistency_time(t_prime, view.time, self.time_limit(dyn_step))
-            state, extra_losses = self.model.training_state(t_prime, view.time, t_check=t_check)
+            t_prime = sampler.t_prime(view.time)
+            t_check = sampler.consistency_time(t_prime, view.time, sampler.time_limit(dyn_step))
+            gaussians, extra_losses = self.model.training_state(t_prime, view.time, t_check=t_check)
         t_fields = self._clock()
         background = torch.rand(3, device=self.device) if cfg.random_background else self.data.background
-        losses, infos = self.views_loss(state, views, background)
+        losses, infos = self.views_loss(gaussians, views, background)
         if not static:  # the model's named auxiliary losses join the loss, each logged by name
             for name, value in (extra_losses | self.model.regularization_losses()).items():
                 losses[name] = value
@@ -280,16 +211,16 @@ class Trainer:
         try:
             check_step(losses["loss"], self.model.parameters(), step)
         except NonFinite:
-            self._zero_grads()
+            zero_grads(state.all_optimizers())
             raise
         t_backward = self._clock()
         if not static and cfg.stage2.freeze_surroundings:
-            hold_surroundings(self)
-        gaussians = list(self.optimizers.values())
-        step_adams([*gaussians, None if static else self.field_opt, self.colour_opt])
-        zero_grads([*gaussians, self.field_opt, self.colour_opt])
+            hold_surroundings(self.model, state.optimizers)
+        adams = list(state.optimizers.values())
+        step_adams([*adams, None if static else state.field_opt, state.colour_opt])
+        zero_grads(state.all_optimizers())
         report = self.strategy.step_post_backward(
-            self.model.gaussians, self.optimizers, self.strategy_state, step, infos
+            self.model.gaussians, state.optimizers, state.strategy, step, infos
         )
         t_end = self._clock()
         for key, dt in (
@@ -298,9 +229,9 @@ class Trainer:
             ("backward", t_backward - t_render),
             ("optimizer", t_end - t_backward),
         ):
-            self.timings[key] += dt
-        self.train_seconds += t_end - t_start
-        self.step += 1
+            state.timings[key] += dt
+        state.train_seconds += t_end - t_start
+        state.step += 1
         return {k: float(v.detach()) for k, v in losses.items()} | {f"n_{k}": v for k, v in report.items()}
 
     # ----- loop -------------------------------------------------------------------------------------
@@ -312,10 +243,10 @@ class Trainer:
             for name in (CHECKPOINT, CONFIG, EXTRAPOLATION, LOG, SUMMARY):  # of a killed process's writes
                 remove_temporaries(self.run / name)
             save_config(self.cfg, self.run / CONFIG)
-            truncate_log(self.run / LOG, self.step)  # the steps past the checkpoint are trained again
+            truncate_log(self.run / LOG, self.state.step)  # the steps past the checkpoint are trained again
             if self.progress:
                 tqdm.write(self.describe())
-            self.checkpoints.keep(trainer_state(self))
+            self.checkpoints.keep(self._checkpoint())
             ran = self._train_steps()
             if not ran:  # a finished run: its checkpoint takes the config of this call
                 self.save()
@@ -332,27 +263,28 @@ class Trainer:
 
     def _train_steps(self) -> bool:
         """The steps up to ``total_steps``, each checkpoint and the last one saved; whether any ran."""
-        cfg, total, start = self.cfg, self.total_steps, self.step
+        cfg, total, start = self.cfg, self.total_steps, self.state.step
         self._in_step = False
-        bar = tqdm(total=total, initial=self.step, disable=not self.progress, desc=f"train {stage(self)}")
+        bar = tqdm(total=total, initial=start, disable=not self.progress, desc=f"train {stage(cfg, start)}")
         log = (self.run / LOG).open("a")
         try:
             with interrupt_at_step_end() as interrupt, ThreadPolicy(cfg.threads) as threads:
                 self.threads = threads
-                while self.step < total:
+                while self.state.step < total:
                     try:
                         threads.check()
                         stats = self.train_step()
-                        report_step(self, stats, bar, log)
-                        if self.step % cfg.checkpoint_every == 0 or self.step == total:
-                            check_parameters(self.model.parameters(), self.step)
+                        n = self.model.gaussians["means"].shape[0]
+                        report_step(cfg, self.state, total, n, stats, bar, log)
+                        if self.state.step % cfg.checkpoint_every == 0 or self.state.step == total:
+                            check_parameters(self.model.parameters(), self.state.step)
                             self.save()
                     except NonFinite as err:
                         log.close()
-                        restore_after(self, err)
+                        self._restore_after(err)
                         log = (self.run / LOG).open("a")
                         bar.reset(total)
-                        bar.update(self.step)
+                        bar.update(self.state.step)
                     if interrupt.requested:
                         raise KeyboardInterrupt
         except KeyboardInterrupt:
@@ -361,16 +293,16 @@ class Trainer:
         finally:
             bar.close()
             log.close()
-        return self.step > start
+        return self.state.step > start
 
     def _save_interrupted(self) -> None:
         """The checkpoint of an interrupted run: the current step's, or the last good state where the
         interrupt came in the middle of a step or the parameters are not finite."""
-        held = f"step {self.step}"
+        held = f"step {self.state.step}"
         try:
             if self._in_step:
-                raise NonFinite(self.step, "step")  # half a step: neither this one nor the next
-            check_parameters(self.model.parameters(), self.step)
+                raise NonFinite(self.state.step, "step")  # half a step: neither this one nor the next
+            check_parameters(self.model.parameters(), self.state.step)
             self.save()
         except NonFinite:
             self.checkpoints.write_good()
@@ -381,19 +313,50 @@ class Trainer:
             tqdm.write(f"interrupted: {self.run / CHECKPOINT} holds {held}; the same command resumes")
 
     def describe(self) -> str:  # what this run trains, in a line or two (printed when it starts)
-        return describe(self)
+        cfg, model, device = self.cfg, self.model, self.device
+        per_step = self.sampler.views_per_step
+        return describe(cfg, self.data, model, self.t_max, self.total_steps, per_step, device)
 
     def summary(self) -> dict:
-        return summary(self)
+        cfg, model, device = self.cfg, self.model, self.device
+        return summary(cfg, self.state, model, self.t_max, self.extrapolation, device, self.threads)
 
     # ----- checkpoints -----------------------------------------------------------------------------
+    def _checkpoint(self) -> dict:
+        return checkpoint(self.state, self.model, self.cfg, self.fingerprint, self.t_max, self.device)
+
     def save(self) -> Path:
         """Write the checkpoint (atomically) and keep it in memory as the last good state."""
-        return self.checkpoints.save(trainer_state(self))
+        return self.checkpoints.save(self._checkpoint())
+
+    def _restore(self, ckpt: dict) -> None:
+        """The model and ``state`` as the checkpoint ``ckpt`` holds them."""
+        cfg, generator = self.cfg, self.state.generator
+        self.state = restore(ckpt, self.model, cfg.optim, self.extent, self.strategy, generator, self.device)
 
     def _resume(self, path: Path) -> None:
         ckpt = load_tensors(path, self.device)
         changed = check_resumable(ckpt, self.cfg, self.fingerprint, path)
-        restore_trainer_state(self, ckpt)
+        self._restore(ckpt)
         if not changed:  # else calibrated again with the new settings when the steps are done
             self.extrapolation = load_extrapolation(self.run, self.device)
+
+    def _restore_after(self, err: NonFinite) -> None:
+        """The NaN guard after ``err``: back to the last good state with the learning rates times
+        ``optim.nan_lr_factor``; the second time, that state is saved and ``TrainingDiverged`` raised."""
+        failed, factor = self.state, self.cfg.optim.nan_lr_factor
+        self._restore(self.checkpoints.last_good(self.device))
+        self.state.train_seconds = failed.train_seconds  # the time spent is spent
+        truncate_log(self.run / LOG, self.state.step)
+        if failed.restorations:
+            self.save()
+            raise TrainingDiverged(
+                diverged(self.run / CHECKPOINT, err, failed.restorations[0], factor, self.state.step)
+            )
+        self.state.lr_scale = failed.lr_scale * factor
+        self.state.restorations = [
+            *failed.restorations,
+            {"step": err.step, "to_step": self.state.step, "what": err.what},
+        ]
+        if self.progress:
+            tqdm.write(f"{err}: restored step {self.state.step}, learning rates x{factor}")
