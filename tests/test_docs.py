@@ -8,8 +8,8 @@ folder of the module that cites it. A path with a ``NAME`` part (``docs/results/
 pattern, not a file, and is skipped. Nothing else is excused: a reference to a file outside the
 repository (METHOD.md) fails; cite the TRACE paper's section or equation instead.
 
-A link of README.md, docs/*.md and docs/results/*.md (``[text](target)``) that is not a URL or an
-anchor names a file or folder relative to the page that holds it.
+A link of README.md, benchmarks/README.md, docs/*.md and docs/results/*.md (``[text](target)``) that
+is not a URL or an anchor names a file or folder relative to the page that holds it.
 """
 
 import ast
@@ -111,7 +111,7 @@ def test_every_reference_of_the_package_names_a_file_of_the_repository():
     assert not missing, "references to files that are not in the repository:\n" + "\n".join(missing)
 
 
-@pytest.mark.parametrize("pages", [["README.md"], ["docs/*.md"], ["docs/results/*.md"]])
+@pytest.mark.parametrize("pages", [["*.md", "benchmarks/*.md"], ["docs/*.md"], ["docs/results/*.md"]])
 def test_links_of_the_docs_resolve(pages):
     files = [p for pattern in pages for p in sorted(REPO.glob(pattern))]
     assert files

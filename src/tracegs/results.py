@@ -13,10 +13,12 @@ A record is one benchmark's current result, in one schema for every benchmark::
 
 ``rows`` are flat dicts (numbers, strings or null); ``columns`` names the keys shown, in order.
 ``headline`` is the figure a reader takes away, ``anchor`` what it is measured against (the paper, a
-baseline, a target); a benchmark script may leave both out, but the pages are made only from records
-that have them, with notes of at most two sentences (:func:`check_for_pages`): whoever records a new
-result states its headline. A new result of a benchmark replaces its record; git history keeps the
-earlier ones. ``tracegs results`` calls :func:`write_results_page`, the same bytes for the same records.
+baseline, a target): both are written by hand, and a benchmark script leaves them out. A new result of
+a benchmark replaces its record, keeping the headline and anchor of the record it replaces
+(:func:`write_record`); git history keeps the earlier ones. ``tracegs results`` calls
+:func:`write_results_page`, the same bytes for the same records; it never refuses a record the schema
+accepts: a missing headline or anchor shows as missing, notes are cut to two sentences. A committed
+record passes :func:`check_for_pages` (the tests hold every record of ``docs/results/`` to it).
 Standard library only (the CPU description reads ``/proc/cpuinfo``).
 """
 
@@ -28,6 +30,7 @@ import os
 import platform
 import re
 import subprocess
+import sys
 from pathlib import Path
 
 from .utils import cpu_flags
@@ -46,13 +49,19 @@ KEYS = (
     "notes",
 )
 """The record's keys, in the order they are written; all but ``headline``, ``anchor`` and ``notes``
-are required (the pages need the first two: :func:`check_for_pages`)."""
+are required (a committed record has the first two: :func:`check_for_pages`)."""
 
 OPTIONAL = ("headline", "anchor", "notes")
 REQUIRED = tuple(k for k in KEYS if k not in OPTIONAL)
 
+HAND_WRITTEN = ("headline", "anchor")
+"""The keys a person writes and a rerun of the benchmark keeps (:func:`write_record`)."""
+
 MAX_NOTE_SENTENCES = 2
 """A record's notes on its page: at most this many sentences (the story of a result lives in git)."""
+
+MISSING = "(headline not written: see the page)"
+"""The table's cell for a record without a headline (its page says what to add)."""
 
 MAX_PAGE_LINES = 80
 """docs/RESULTS.md fits one screen: at most this many lines."""
@@ -212,11 +221,24 @@ def validate_record(record: dict, source: str = "record") -> dict:
 
 
 def write_record(path: str | Path, record: dict) -> Path:
-    """Validate ``record`` and write it to ``path`` (JSON, atomically: readers never see half a file)."""
+    """Validate ``record`` and write it to ``path`` (JSON, atomically: readers never see half a file).
+    The :data:`HAND_WRITTEN` keys that ``record`` lacks are kept from the record ``path`` holds, if any
+    (a rerun replaces the numbers, not the headline; a line on stderr asks to check it against them)."""
     from .utils import atomic_write_text  # imported here: importing this module stays torch-free
 
+    path = Path(path)
     record = validate_record(record, str(path))
-    return atomic_write_text(Path(path), json.dumps(record, indent=1, ensure_ascii=False) + "\n")
+    missing = [k for k in HAND_WRITTEN if not record.get(k)]
+    try:
+        old = read_record(path) if missing and path.is_file() else {}
+    except (OSError, ValueError):  # an unreadable old record keeps nothing; the new one is written
+        old = {}
+    kept = {k: old[k] for k in missing if old.get(k)}
+    if kept:
+        record = validate_record({**record, **kept}, str(path))
+        note = f"{path}: kept the {' and '.join(kept)} of the record it replaces: check against the new rows"
+        print(note, file=sys.stderr)
+    return atomic_write_text(path, json.dumps(record, indent=1, ensure_ascii=False) + "\n")
 
 
 def read_record(path: str | Path) -> dict:
@@ -255,8 +277,9 @@ def sentences(text: str) -> list[str]:
 
 
 def check_for_pages(record: dict, source: str = "record") -> dict:
-    """``record`` if the pages can show it: a ``headline`` and an ``anchor``, notes of at most
-    :data:`MAX_NOTE_SENTENCES` sentences; else ValueError naming ``source`` and what to fix."""
+    """``record`` if it is ready to commit: a ``headline`` and an ``anchor``, notes of at most
+    :data:`MAX_NOTE_SENTENCES` sentences; else ValueError naming ``source`` and what to fix. The
+    generator does not call it (a rerun's record still makes its pages); the tests do."""
     for key in ("headline", "anchor"):
         if not (record.get(key) or "").strip():
             raise ValueError(f"{source}: no {key!r}: state the result's {key} in one line")
@@ -269,18 +292,35 @@ def check_for_pages(record: dict, source: str = "record") -> dict:
     return record
 
 
+def page_notes(notes: str | None) -> str:
+    """``notes`` on one line, cut to their first :data:`MAX_NOTE_SENTENCES` sentences (the record keeps
+    them all)."""
+    return " ".join(sentences(notes or "")[:MAX_NOTE_SENTENCES])
+
+
 def render_record(record: dict, back: str = "../RESULTS.md") -> str:
-    """One record's page: title, headline and anchor, machine · date · commit, the command, the table,
-    the notes, and a link ``back`` to docs/RESULTS.md."""
+    """One record's page: title, headline and anchor (or what to add when either is missing), machine ·
+    date · commit, the command, the table, the notes (:func:`page_notes`), and a link ``back`` to
+    docs/RESULTS.md."""
+    if record.get("headline") and record.get("anchor"):
+        summary = f"**{record['headline']}** against {record['anchor']}."
+    else:
+        what = {"headline": "the figure a reader takes away", "anchor": "what it is measured against"}
+        missing = [k for k in HAND_WRITTEN if not record.get(k)]
+        summary = (
+            f"**No {' and no '.join(missing)} written yet:** add "
+            + " and ".join(f"`{k}` ({what[k]})" for k in missing)
+            + " to the record, then run `tracegs results`."
+        )
     parts = [
         f"# {record['title']}",
-        f"**{record['headline']}** against {record['anchor']}.",
+        summary,
         f"{record['machine']} · {record['date']} · commit {record['commit'] or 'unknown'}",
         f"```\n{record['command'].strip()}\n```",
         markdown_table(record["columns"], record["rows"]),
     ]
     if record.get("notes"):
-        parts.append(" ".join(record["notes"].split()))
+        parts.append(page_notes(record["notes"]))
     parts.append(f"All benchmarks: [RESULTS.md]({back}).")
     return "\n\n".join(parts) + "\n"
 
@@ -292,19 +332,19 @@ def _sort_key(item: tuple[Path, dict]) -> tuple[int, str]:
 
 
 def read_records(results_dir: str | Path) -> list[tuple[Path, dict]]:
-    """Every record of ``results_dir/*.json`` with its file, in :data:`ORDER` (then by file name),
-    each checked for the pages (:func:`check_for_pages`)."""
+    """Every record of ``results_dir/*.json`` with its file, in :data:`ORDER` (then by file name)."""
     files = sorted(Path(results_dir).glob("*.json"))
-    records = [(p, check_for_pages(read_record(p), str(p))) for p in files]
+    records = [(p, read_record(p)) for p in files]
     return sorted(records, key=_sort_key)
 
 
 def render_results_page(results_dir: str | Path, pages_link: str = "results") -> str:
     """docs/RESULTS.md: one table row per record of ``results_dir`` (its headline, its anchor, the
-    date), linking to ``pages_link/NAME.md``. ValueError if it would pass :data:`MAX_PAGE_LINES`."""
+    date), linking to ``pages_link/NAME.md``; a record without a headline says so (:data:`MISSING`),
+    one without an anchor shows a dash. ValueError if it would pass :data:`MAX_PAGE_LINES`."""
     rows = [
-        f"| [{format_value(r['benchmark'])}]({pages_link}/{p.stem}.md) | {format_value(r['headline'])} "
-        f"| {format_value(r['anchor'])} | {r['date']} |"
+        f"| [{format_value(r['benchmark'])}]({pages_link}/{p.stem}.md) "
+        f"| {format_value(r.get('headline') or MISSING)} | {format_value(r.get('anchor'))} | {r['date']} |"
         for p, r in read_records(results_dir)
     ]
     lines = ["# Results", "", INTRO, "", "| benchmark | headline | anchor | date |", "|---|---|---|---|"]
