@@ -172,7 +172,7 @@ def _perturbed_model(scene, run, settings: dict | None = None):
 
 
 def test_straight_through_at_t_prime_is_exact(tiny_scene, tmp_path):
-    """METHOD.md: x = x_phys(x_t'.detach()) + (x_t' - x_t'.detach()), so the rendered position
+    """The paper's training (Section 3.3): x = x_phys(x_t'.detach()) + (x_t' - x_t'.detach()), so the rendered position
     has the value of the physics result and the gradient of f_defo(t') with Jacobian exactly I."""
     model = _perturbed_model(tiny_scene, tmp_path / "a")
     state = model.training_state(0.25, 0.5)[0]

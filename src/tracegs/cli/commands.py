@@ -313,7 +313,8 @@ class Bench:
 
 @dataclass
 class Results:
-    """Make docs/RESULTS.md from the results records in docs/results/ (one table per benchmark)."""
+    """Make docs/RESULTS.md (each benchmark's headline against its anchor) and one page per record,
+    docs/results/NAME.md, from the results records docs/results/NAME.json."""
 
     json: Path = Path("docs/results")
     """Folder of the results records (``*.json``)."""

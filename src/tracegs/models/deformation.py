@@ -25,7 +25,7 @@ DeformationOutput = tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # dx [N, 3]
 
 @dataclass
 class DeformationConfig:
-    """The deformation field f_defo (defaults: the paper's Appendix and METHOD.md)."""
+    """The deformation field f_defo (defaults: the paper's Appendix)."""
 
     kind: str = "mlp"
     """"mlp" (Deformable 3DGS, TRACE) or "hexplane" (4DGS, TRACE_4dgs)."""

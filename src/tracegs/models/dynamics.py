@@ -3,7 +3,7 @@
 N: particles (Gaussians), W: hidden width, E: encoded input channels.
 An MLP maps the encoded 4-vector (x, y, z, t) to the per-particle dynamics parameters of
 ``physics/integrate.py``: equivalent centre velocity v_bar, angular velocity w, and (order >= 2)
-accelerations a = a_raw |a_raw| / scale (element-wise, METHOD.md), (order 3) jerks scaled the same way.
+accelerations a = a_raw |a_raw| / scale (element-wise, as the authors' code), (order 3) jerks scaled the same way.
 
 Initialisation. The velocity outputs (and the explicit centre) start at exactly zero (zero weights and
 biases), so a new field is "no motion" in velocity; their heads still receive gradients (hidden
@@ -38,7 +38,7 @@ ACCELERATIONS = ("acceleration", "angular_acceleration", "jerk", "angular_jerk")
 
 @dataclass
 class DynamicsConfig:
-    """The dynamics field f_trd (defaults: METHOD.md)."""
+    """The dynamics field f_trd (defaults: the paper's Appendix)."""
 
     depth: int = 8
     """Hidden layers of the MLP (Appendix: 8 x 256)."""
@@ -48,7 +48,7 @@ class DynamicsConfig:
     """Frequencies L of the encoding [u, sin(2^k u), cos(2^k u)] of the 4-vector (x, y, z, t)."""
     time_frequencies: int | None = None
     """Frequencies of the time channel when it should differ from the positions' (``num_frequencies``
-    then applies to x, y, z only); None: one L for the whole 4-vector (METHOD.md). Spatial frequencies
+    then applies to x, y, z only); None: one L for the whole 4-vector (the paper). Spatial frequencies
     let f_trd separate parts, and also let a spatially varying v_bar stand in for a rotation
     (docs/PHYSICS.md); time frequencies let velocities change within the span."""
     activation: str = "silu"
@@ -84,7 +84,7 @@ class DynamicsConfig:
 
     @classmethod
     def light(cls, **overrides) -> DynamicsConfig:
-        """The light preset of METHOD.md: L = 3, 6 x 128."""
+        """A lighter field than the paper's: L = 3, 6 x 128."""
         return cls(**{"depth": 6, "width": 128, "num_frequencies": 3, **overrides})
 
     def output_slices(self) -> dict[str, slice]:
@@ -100,7 +100,7 @@ class DynamicsConfig:
 
 
 def scale_acceleration(raw: torch.Tensor, scale: float) -> torch.Tensor:
-    """``raw * |raw| / scale`` (METHOD.md): signed square, small near zero, large values reachable."""
+    """``raw * |raw| / scale`` (the authors' code): signed square, small near zero, large values reachable."""
     return raw * raw.abs() / scale
 
 

@@ -23,7 +23,7 @@ False: always the ATen ops below (to compare)."""
 def positional_encoding(u: torch.Tensor, num_frequencies: int, include_input: bool = True) -> torch.Tensor:
     """``[u, sin(2^0 u), cos(2^0 u), ..., sin(2^(L-1) u), cos(2^(L-1) u)]`` [..., D (1 + 2L)].
 
-    No pi factor (METHOD.md, as the authors' and Deformable 3DGS's embedder); the channel order is
+    No pi factor (as the authors' and Deformable 3DGS's embedder); the channel order is
     the Deformable 3DGS one (frequency-major, then sin/cos, then input channel). Float32 on the CPU
     takes one native op (``NATIVE``; the same values to ~2e-7), else ATen's.
     """

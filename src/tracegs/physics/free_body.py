@@ -276,12 +276,7 @@ def split_rigid(
     it is one part. Last, each point joins the part, among its own and its ``neighbours``' parts,
     whose rigid motion fits its velocity best, pass after pass (up to ``rounds``) until none moves: the
     claims' threshold lets the first part take points of a hinged part near its hinge, where the two
-    motions differ little, and one pass moves only the outermost of them.
-
-    Measured on the validation runs (2026-11-29): `fallingball`'s ball, 99.8% of it on one motion;
-    the satellite's body on one motion, its wings and door 0.16-0.18 off it (the body's points 0.005).
-    After one pass the door's part held 144 of the body's Gaussians and the left wing's 45; after the
-    passes 3 and 20 (the body's part keeps 302 of the right wing's, within 0.014 of its hinge)."""
+    motions differ little, and one pass moves only the outermost of them."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree

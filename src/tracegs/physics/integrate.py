@@ -10,7 +10,7 @@ The motion of a particle at position x [N, 3] is the rigid-body velocity field (
     dx/ds = v_bar(s) + w(s) x x,        dR/ds = [w(s)]_x R,
 
 with the equivalent centre velocity ``v_bar`` and angular velocity ``w`` evolving polynomially in the
-time ``s`` elapsed since the query (METHOD.md: params(t' + s) = params(t') + s (a_bar, eps), plus
+time ``s`` elapsed since the query (Alg. 1: params(t' + s) = params(t') + s (a_bar, eps), plus
 s^2/2 (jerk) for the third-order system). The position ODE is linear in x with time-varying
 coefficients; the orientation obeys the same rotation, so a particle and its Gaussian turn together.
 Negative ``dt`` integrates backward in time with the same formulas.
@@ -74,7 +74,7 @@ def zero_params(x: torch.Tensor, order: int = 2) -> DynamicsParams:
 
 
 def params_at(params: DynamicsParams, s: Time) -> DynamicsParams:
-    """The parameters ``s`` after their query time (METHOD.md, RK2 step 1).
+    """The parameters ``s`` after their query time (Alg. 1, RK2 step 1).
 
     Velocities: ``v(s) = v + s a (+ s^2/2 j)``; accelerations: ``a(s) = a (+ s j)``; jerk constant.
     """
@@ -175,7 +175,7 @@ def euler_scheme(x: torch.Tensor, params: DynamicsParams, dt: Time) -> tuple[tor
 
 
 def rk2_scheme(x: torch.Tensor, params: DynamicsParams, dt: Time) -> tuple[torch.Tensor, torch.Tensor]:
-    """Explicit midpoint RK2 as in the authors' code (METHOD.md, RK2 step 2-4). Second order.
+    """Explicit midpoint RK2 as in the authors' code (Alg. 1, RK2 steps 2-4). Second order.
 
     ``x_mid = x + dt/2 v(x; params(0))``, ``x_new = x + dt (v_bar_mid + w_mid x x_mid)``,
     ``dR = Rodrigues(dt w_mid)`` (the midpoint rule for the rotation, i.e. 2nd-order Magnus).
