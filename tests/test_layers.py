@@ -72,3 +72,31 @@ def test_python_dash_m_tracegs_runs_the_cli():
     out = subprocess.run([sys.executable, "-m", "tracegs", "--help"], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert "usage: tracegs" in out.stdout and "calibrate" in out.stdout
+
+
+def _reach_ins(pattern: str, allowed: Path, root: Path = SRC) -> list[str]:
+    """``path:line`` of the lines of the package ``root`` outside ``allowed`` (a file or a folder) that
+    match ``pattern``, comments and docstrings included (a reach-in only mentioned is still one)."""
+    found = []
+    for path in root.rglob("*.py"):
+        if path == allowed or allowed in path.parents:
+            continue
+        for i, line in enumerate(path.read_text().splitlines(), start=1):
+            if re.search(pattern, line):
+                found.append(f"{path.relative_to(root)}:{i}")
+    return found
+
+
+def test_no_code_reaches_into_a_models_config_or_the_trainer():
+    """Settings reach a module as its own sections (a trained run's through ``extrapolate.Predictor``),
+    and the trainer's state is its own (``train/state.py``): nothing outside ``models/`` reads
+    ``model.cfg``, nothing outside ``train/trainer.py`` reads ``trainer.<attribute>``."""
+    assert not _reach_ins(r"\bmodel\.cfg\b", SRC / "models")
+    assert not _reach_ins(r"\btrainer\.[a-z_]", SRC / "train" / "trainer.py")
+
+
+def test_the_reach_in_check_finds_a_reach_in(tmp_path):
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "trace.py").write_text("self.cfg = cfg\nsh = model.cfg.sh_degree\n")
+    (tmp_path / "eval.py").write_text("a = predictor.model.cfgs\nb = model.cfg.extrapolation\n")
+    assert _reach_ins(r"\bmodel\.cfg\b", tmp_path / "models", tmp_path) == ["eval.py:2"]
