@@ -28,6 +28,7 @@ import torch
 from .config import TrainConfig, config_from_dict, config_to_dict
 from .config.validate import check_choices
 from .extrapolate import ExtrapolationState, has_policy
+from .machine import resolve_device, this_machine
 from .models.gaussians import empty_like_params
 from .models.trace import TraceModel
 from .run_compat import migrate_config
@@ -35,10 +36,8 @@ from .utils import (
     LockHeld,
     atomic_torch_save,
     atomic_write_text,
-    cpu_has_fast_bf16,
     exclusive_lock,
     first_line,
-    resolve_device,
 )
 
 CONFIG, CHECKPOINT, EXTRAPOLATION, SUMMARY, LOG, LOCK = (
@@ -226,10 +225,10 @@ def gaussians_of(model_state: dict):
 
 def fields_in_bf16(cfg: TrainConfig) -> bool:
     """Whether a model of ``cfg`` runs its fields in bf16 on this machine: where the config asks for it
-    and the CPU multiplies bf16 in hardware (AMX or AVX512-BF16, as `cpu-fast` chooses). A config made
-    on another machine (a run loaded or resumed there, a sweep's task) asks for it where it would be
-    emulated, ~8x slower a step; fp32 gives the fields' values exactly."""
-    return cfg.bf16 and cpu_has_fast_bf16()
+    and the CPU multiplies bf16 in hardware (``Machine.fast_bf16``, as `cpu-fast` chooses). A config
+    made on another machine (a run loaded or resumed there, a sweep's task) asks for it where it would
+    be emulated, ~8x slower a step; fp32 gives the fields' values exactly."""
+    return cfg.bf16 and this_machine().fast_bf16
 
 
 def _trained_model(cfg: TrainConfig, run: Path, device: str) -> tuple[TraceModel, dict]:

@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+from ..machine import this_machine
 from ..models.deformation import DeformationConfig
 from ..models.dynamics import DynamicsConfig
-from ..utils import cpu_has_fast_bf16
 from .sections import DensifyConfig, ExtrapolationConfig, OptimConfig, Stage2Config
 from .validate import check_setting, flag_name, validate  # noqa: F401  (part of the config API)
 
@@ -125,7 +125,7 @@ def cpu_fast() -> TrainConfig:
         preset="cpu-fast",
         static_iterations=1500,
         dynamic_iterations=20000,
-        bf16=cpu_has_fast_bf16(),
+        bf16=this_machine().fast_bf16,
         random_background=True,
         init_points=5000,
         sh_degree=1,

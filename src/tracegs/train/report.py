@@ -7,8 +7,9 @@ import json
 import math
 
 from .. import __version__
+from ..machine import this_machine
 from ..render.rendering import resolve_backend
-from ..results import current_commit, machine_description
+from ..results import current_commit
 
 
 def stage(trainer) -> str:
@@ -80,5 +81,5 @@ def summary(trainer) -> dict:
         "fields_dtype": "bf16" if trainer.model.fields_bf16 else "fp32",
         "tracegs": __version__,
         "commit": current_commit(),
-        "machine": machine_description(),
+        "machine": this_machine().record(),
     }

@@ -28,6 +28,7 @@ from ..data.dataset import ViewDataset, frame_interval
 from ..data.frames import DatasetError
 from ..data.scene import load_scene
 from ..extrapolate import calibrate
+from ..machine import resolve_device
 from ..models.trace import TraceModel
 from ..run import (
     CHECKPOINT,
@@ -44,7 +45,7 @@ from ..run import (
     save_extrapolation,
     truncate_log,
 )
-from ..utils import atomic_write_text, remove_temporaries, resolve_device, seed_everything, synchronize
+from ..utils import atomic_write_text, remove_temporaries, seed_everything, synchronize
 from .checkpoint import (
     Checkpoints,
     check_resumable,
