@@ -239,7 +239,8 @@ def _trained_model(cfg: TrainConfig, run: Path, device: str) -> tuple[TraceModel
     dev = resolve_device(device)
     ckpt = _check_checkpoint(load_tensors(path, dev), path)
     state = ckpt["model"]
-    model = TraceModel(cfg, gaussians_of(state), state["aabb"], float(state["frame_interval"])).to(dev)
+    settings = cfg.model_config()
+    model = TraceModel(settings, gaussians_of(state), state["aabb"], float(state["frame_interval"])).to(dev)
     try:
         model.load_state_dict(state)
     except (RuntimeError, KeyError, ValueError) as err:
