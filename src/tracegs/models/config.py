@@ -76,7 +76,8 @@ class ModelConfig:
     method: Literal["trace", "defgs", "static"] = "trace"
     """trace = deformation + dynamics; defgs = deformation field alone; static = 3DGS at t = 0 only."""
     deformation: DeformationConfig = field(default_factory=DeformationConfig)
-    """f_defo, the auxiliary deformation field (trace without ``stage2.use_deformation``, static: none)."""
+    """f_defo, the auxiliary deformation field (none for ``static``, nor for ``trace`` without
+    ``stage2.use_deformation``)."""
     dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
     """f_trd, the translation-rotation dynamics field (trace only)."""
     stage2: Stage2Config = field(default_factory=Stage2Config)
