@@ -27,7 +27,7 @@ import sys
 import time
 from pathlib import Path
 
-from tracegs.cpp import ISA_ENVIRONMENTS
+from tracegs.machine import ISA_ENVIRONMENTS
 from tracegs.results import current_commit, machine_description, make_record, read_record, write_record
 
 COLUMNS = ["cpu", "fields", "train_s", "train_min", "command_min", "extrap_mae_psnr", "code", "date"]
@@ -48,8 +48,9 @@ def demo_row(run: Path, isa: str, command_seconds: float, code: str | None, date
     summary = json.loads((run / "summary.json").read_text())
     metrics = json.loads((run / "eval.json").read_text())
     seconds = float(summary["train_seconds"])
+    machine = summary.get("machine")  # (a line of text in the summaries of earlier versions)
     return {
-        "cpu": cpu_label(isa, summary.get("machine")),
+        "cpu": cpu_label(isa, machine["description"] if isinstance(machine, dict) else machine),
         "fields": summary.get("fields_dtype", "unknown"),  # (summaries before it was recorded)
         "train_s": round(seconds, 1),
         "train_min": f"{seconds / 60:.1f}",

@@ -38,7 +38,7 @@ import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils.flop_counter import FlopCounterMode
 
-from tracegs.cpp import ISA_ENVIRONMENTS, json_of_process_held_to
+from tracegs.machine import ISA_ENVIRONMENTS, json_of_process_held_to
 from tracegs.models import deformation, encoding, fused_mlp
 from tracegs.models import fields_step as one_node
 from tracegs.physics import fused

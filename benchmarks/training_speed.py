@@ -24,11 +24,11 @@ import torch
 
 from tracegs.config import TrainConfig, apply_overrides, config_from_dict
 from tracegs.image_metrics import ssim
+from tracegs.machine import this_machine
 from tracegs.render.ssim import training_ssim
 from tracegs.results import make_record, write_record
 from tracegs.train.threads import ThreadPolicy
 from tracegs.train.trainer import Trainer
-from tracegs.utils import cpu_flags
 
 
 def ssim_ms(fn, size: int, threads: int, repeats: int = 300) -> float:
@@ -129,7 +129,7 @@ def main() -> None:
                 {"what": "training step", "setting": f"{views} view(s)", **time_steps(trainer, args.steps)}
             )
         alone = rows[-4]["ms_per_step"]
-        if cpu_flags() & {"amx_bf16", "avx512_bf16"}:  # (elsewhere bf16 is emulated, far slower)
+        if this_machine().fast_bf16:  # (elsewhere bf16 is emulated, far slower)
             for threads in sorted({1, cores}):
                 rows += dtype_rows(args.run, Path(tmp), args.data, args.steps, threads)
             torch.set_num_threads(cores)

@@ -71,7 +71,8 @@ def randomised_model(cfg, n: int = 400):
 
     torch.manual_seed(0)
     aabb = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
-    model = TraceModel(cfg, random_gaussians(n, aabb, cfg.sh_degree), aabb, frame_interval=0.05)
+    gaussians = random_gaussians(n, aabb, cfg.sh_degree)
+    model = TraceModel(cfg.model_config(), gaussians, aabb, frame_interval=0.05)
     with torch.no_grad():
         for p in model.field_parameters():
             p.copy_(0.05 * torch.randn_like(p))

@@ -75,28 +75,3 @@ def test_random_states_round_trip_every_generator():
     random.random(), np.random.rand(3), torch.rand(5)  # move each generator on
     set_random_states(states, torch.device("cpu"))
     assert (random.random(), float(np.random.rand()), np.random.randn(), float(torch.rand(()))) == first
-
-
-def test_hardware_bf16_is_read_from_the_cpu_flags(tmp_path, monkeypatch):
-    import torch
-
-    from tracegs.utils import cpu_has_fast_bf16
-
-    monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: "AVX512")
-
-    def cpu(name, flags):
-        path = tmp_path / name
-        path.write_text(
-            f"processor\t: 0\nmodel name\t: X\nflags\t\t: {flags}\n\nprocessor\t: 1\nflags\t\t: {flags}\n"
-        )
-        return str(path)
-
-    assert not cpu_has_fast_bf16(cpu("avx2", "fpu sse2 avx avx2 fma"))
-    assert not cpu_has_fast_bf16(cpu("avx512", "avx2 avx512f avx512bw avx512_vnni"))
-    assert cpu_has_fast_bf16(cpu("zen4", "avx2 avx512f avx512_bf16"))
-    assert cpu_has_fast_bf16(cpu("spr", "avx2 avx512f avx512_bf16 amx_bf16 amx_tile"))
-    assert not cpu_has_fast_bf16(str(tmp_path / "missing"))
-    monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: "AVX2")  # (ATen held to AVX2)
-    assert not cpu_has_fast_bf16(cpu("zen4", "avx2 avx512f avx512_bf16"))
-    monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: "AVX512")
-    assert cpu_has_fast_bf16(cpu("zen4", "avx2 avx512f avx512_bf16"))

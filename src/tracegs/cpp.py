@@ -13,14 +13,14 @@ falls back to its pure-PyTorch path.
 from __future__ import annotations
 
 import hashlib
-import json
 import os
-import platform
 import shutil
 import subprocess
 import time
 import warnings
 from pathlib import Path
+
+from .machine import cpu_tag, this_machine
 
 
 def compiler() -> str:
@@ -39,50 +39,6 @@ def supports_flag(flag: str) -> bool:
         return res.returncode == 0
     except (OSError, subprocess.SubprocessError):
         return False
-
-
-def march() -> str:
-    """The extensions' ``-march``: ``TRACEGS_MARCH`` when set (e.g. ``x86-64-v3``, AVX2: a build for a
-    cluster's older nodes, or to measure what an AVX2-only CPU gets), else ``native``."""
-    return os.environ.get("TRACEGS_MARCH", "native")
-
-
-ISA_ENVIRONMENTS = {
-    "native": {},
-    "avx2": {
-        "ATEN_CPU_CAPABILITY": "avx2",
-        "DNNL_MAX_CPU_ISA": "AVX2",
-        "MKL_ENABLE_INSTRUCTIONS": "AVX2",
-        "TRACEGS_MARCH": "x86-64-v3",
-    },
-}
-"""Environment variables that hold a process to an instruction set, for benchmarks (``--isa``): this
-CPU's own, or an AVX2-only CPU's code paths (ATen's kernels, oneDNN, MKL and the extensions, built
-for x86-64-v3) as an AVX2 laptop runs them. They act at start-up: set them for a new process."""
-
-
-def json_of_process_held_to(isa: str, argv: list[str]):
-    """Run ``argv`` (a Python benchmark) in a new process held to ``isa`` (``ISA_ENVIRONMENTS``) and
-    return the JSON value it prints last; its earlier output is echoed. A failure raises
-    RuntimeError with the end of its stderr."""
-    child = subprocess.run(argv, env={**os.environ, **ISA_ENVIRONMENTS[isa]}, capture_output=True, text=True)
-    if child.returncode != 0:
-        raise RuntimeError(f"{' '.join(argv[:3])} (held to {isa}) failed:\n{child.stderr[-2000:]}")
-    *earlier, last = child.stdout.strip().splitlines()
-    if earlier:
-        print("\n".join(earlier), flush=True)
-    return json.loads(last)
-
-
-def cpu_tag() -> str:
-    """Short hash of the CPU model and instruction-set flags."""
-    info = platform.machine() + platform.processor()
-    try:
-        lines = Path("/proc/cpuinfo").read_text().splitlines()
-        info += "".join(line for line in lines if line.startswith(("model name", "flags")))[:4096]
-    except OSError:
-        pass
-    return hashlib.sha1(info.encode()).hexdigest()[:8]
 
 
 def _first_line(err: BaseException) -> str:
@@ -157,8 +113,9 @@ class NativeExtension:
         cflags = ["-O3", "-ffp-contract=off"]
         # Same float results in forward and backward loops (the rasteriser decides alpha thresholds in
         # both independently) need identical rounding: no FMA contraction, no fast-math.
-        if supports_flag(f"-march={march()}"):
-            cflags.append(f"-march={march()}")
+        march = this_machine().march
+        if supports_flag(f"-march={march}"):
+            cflags.append(f"-march={march}")
         cflags += self.cflags
         ldflags = []
         if openmp:
@@ -186,9 +143,8 @@ class NativeExtension:
         fallback possible). Keyed by source, two checkouts (a user's install beside a clone, a
         benchmark of an older commit) each keep their build instead of rebuilding the other's on every
         switch: torch keeps one build per name and rebuilds when the source's path or text differs."""
-        tag = (
-            cpu_tag() if march() == "native" else f"{cpu_tag()}_{march().replace('-', '_').replace('.', '_')}"
-        )
+        march = this_machine().march
+        tag = cpu_tag() if march == "native" else f"{cpu_tag()}_{march.replace('-', '_').replace('.', '_')}"
         key = [str(self.source.resolve()), self.source.read_text(), *flags]
         content = hashlib.sha1("\0".join(key).encode()).hexdigest()[:8]
         return f"{self.name}_{tag}_{content}" + ("" if openmp else "_serial")

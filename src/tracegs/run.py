@@ -1,6 +1,6 @@
 """The run folder: what ``tracegs train`` writes and every other command reads.
 
-``RUN/config.json``        the resolved config (plain JSON parsed into the dataclasses of ``config.py``)
+``RUN/config.json``        the resolved config (plain JSON parsed into the dataclasses of ``config/``)
 ``RUN/checkpoint.pt``      all that training goes on from (``train/checkpoint.py``; written atomically, a
                            killed run resumes from it to the parameters an uninterrupted run ends with)
 ``RUN/extrapolation.pt``   the post-training state (``extrapolate.ExtrapolationState``), chosen once on
@@ -29,6 +29,7 @@ from .config import TrainConfig, config_from_dict, config_to_dict
 from .config.validate import check_choices
 from .data.scene import load_scene
 from .extrapolate import ExtrapolationState, Predictor, has_policy
+from .machine import resolve_device, this_machine
 from .models.gaussians import empty_like_params
 from .models.trace import TraceModel
 from .run_compat import migrate_config
@@ -36,10 +37,8 @@ from .utils import (
     LockHeld,
     atomic_torch_save,
     atomic_write_text,
-    cpu_has_fast_bf16,
     exclusive_lock,
     first_line,
-    resolve_device,
 )
 
 CONFIG, CHECKPOINT, EXTRAPOLATION, SUMMARY, LOG, LOCK = (
@@ -238,10 +237,10 @@ def gaussians_of(model_state: dict):
 
 def fields_in_bf16(cfg: TrainConfig) -> bool:
     """Whether a model of ``cfg`` runs its fields in bf16 on this machine: where the config asks for it
-    and the CPU multiplies bf16 in hardware (AMX or AVX512-BF16, as `cpu-fast` chooses). A config made
-    on another machine (a run loaded or resumed there, a sweep's task) asks for it where it would be
-    emulated, ~8x slower a step; fp32 gives the fields' values exactly."""
-    return cfg.bf16 and cpu_has_fast_bf16()
+    and the CPU multiplies bf16 in hardware (``Machine.fast_bf16``, as `cpu-fast` chooses). A config
+    made on another machine (a run loaded or resumed there, a sweep's task) asks for it where it would
+    be emulated, ~8x slower a step; fp32 gives the fields' values exactly."""
+    return cfg.bf16 and this_machine().fast_bf16
 
 
 def _trained_model(cfg: TrainConfig, run: Path, device: str) -> tuple[TraceModel, dict]:
@@ -252,7 +251,8 @@ def _trained_model(cfg: TrainConfig, run: Path, device: str) -> tuple[TraceModel
     dev = resolve_device(device)
     ckpt = _check_checkpoint(load_tensors(path, dev), path)
     state = ckpt["model"]
-    model = TraceModel(cfg, gaussians_of(state), state["aabb"], float(state["frame_interval"])).to(dev)
+    settings = cfg.model_config()
+    model = TraceModel(settings, gaussians_of(state), state["aabb"], float(state["frame_interval"])).to(dev)
     try:
         model.load_state_dict(state)
     except (RuntimeError, KeyError, ValueError) as err:

@@ -1,9 +1,9 @@
-"""Small shared helpers: device choice, atomic file writes, seeding and random states, file locks."""
+"""Small shared helpers: atomic file writes, seeding and random states, file locks (what the machine
+can do, the device included, is ``machine.py``'s)."""
 
 from __future__ import annotations
 
 import contextlib
-import functools
 import os
 import random
 import socket
@@ -13,16 +13,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-
-def resolve_device(name: str = "auto") -> torch.device:
-    """'auto' picks CUDA when present, else CPU; anything else is passed to ``torch.device``."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    device = torch.device(name)
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise RuntimeError(f"device {name!r} requested but CUDA is not available")
-    return device
 
 
 def synchronize(device: torch.device) -> None:
@@ -166,28 +156,3 @@ def first_line(err: BaseException) -> str:
     """The first line of an exception's message (its type's name when it has none), for one-line errors."""
     lines = str(err).strip().splitlines()
     return lines[0] if lines else type(err).__name__
-
-
-@functools.cache
-def cpu_flags(cpuinfo: str = "/proc/cpuinfo") -> frozenset[str]:
-    """The instruction-set flags of the first CPU in ``cpuinfo`` (empty where it cannot be read)."""
-    try:
-        with open(cpuinfo) as f:
-            for line in f:
-                key, _, value = line.partition(":")
-                if key.strip() == "flags":
-                    return frozenset(value.split())
-    except OSError:
-        pass
-    return frozenset()
-
-
-def cpu_has_fast_bf16(cpuinfo: str = "/proc/cpuinfo") -> bool:
-    """True on x86 CPUs with bf16 dot products in hardware: AMX-BF16 tiles (Intel Xeon since Sapphire
-    Rapids) or AVX512-BF16 (AMD Zen 4 and later, Intel Cooper Lake). There bf16 autocast makes the
-    fields' matrix products faster (AMX: oneDNN's tiles; AVX512-BF16: the fused MLPs' bf16 products,
-    ``models/fused_mlp.py``); elsewhere bf16 is emulated and slower than fp32. A process whose ATen runs
-    below AVX-512 (``torch.backends.cpu.get_cpu_capability``: e.g. held by ``ATEN_CPU_CAPABILITY=avx2``,
-    as ``cpp.ISA_ENVIRONMENTS``' avx2) runs as an AVX2-only CPU would: False there."""
-    flags = cpu_flags(cpuinfo) & {"amx_bf16", "avx512_bf16"}
-    return bool(flags) and torch.backends.cpu.get_cpu_capability().upper().startswith("AVX512")

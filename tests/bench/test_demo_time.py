@@ -4,6 +4,8 @@ import importlib.util
 import json
 from pathlib import Path
 
+import pytest
+
 SCRIPT = Path(__file__).parents[2] / "benchmarks" / "demo_time.py"
 spec = importlib.util.spec_from_file_location("demo_time", SCRIPT)
 demo_time = importlib.util.module_from_spec(spec)
@@ -30,10 +32,15 @@ def test_a_new_row_replaces_its_cpu_and_fields_but_not_a_baseline():
     assert only_baseline == [rows[0], new]
 
 
-def test_the_row_comes_from_the_runs_summary_and_eval(tmp_path):
+@pytest.mark.parametrize(
+    "machine",
+    [{"description": "2 cores, AMD EPYC (AVX2)", "cores": 2, "fast_bf16": False}, "2 cores, AMD EPYC (AVX2)"],
+    ids=["record", "earlier-text"],
+)
+def test_the_row_comes_from_the_runs_summary_and_eval(tmp_path, machine):
     run = tmp_path / "trace"
     run.mkdir()
-    summary = {"train_seconds": 454.04, "fields_dtype": "fp32", "machine": "2 cores, AMD EPYC (AVX2)"}
+    summary = {"train_seconds": 454.04, "fields_dtype": "fp32", "machine": machine}
     (run / "summary.json").write_text(json.dumps(summary))
     (run / "eval.json").write_text(json.dumps({"extrapolation": {"mae_psnr": 30.5449}}))
     row = demo_time.demo_row(run, "native", 600.0, "abc1234", "2026-12-06")

@@ -7,12 +7,12 @@ import json
 import pytest
 
 from tracegs.bench.raster import run_raster_bench
+from tracegs.machine import this_machine
 from tracegs.render.native import is_available as native_available
-from tracegs.utils import cpu_flags
 
 
 def test_the_avx2_rows_run_in_a_child_and_sit_beside_the_native_ones(tmp_path):
-    if not native_available() or "avx2" not in cpu_flags():
+    if not native_available() or "avx2" not in this_machine().flags:
         pytest.skip("needs the native rasteriser on a CPU with AVX2")
     path = tmp_path / "raster.json"
     rows = run_raster_bench(

@@ -12,9 +12,9 @@ import pytest
 import torch
 from render_helpers import PARAMS, hard_scene, native_available, rel_err, render_with_grads
 
+from tracegs.machine import this_machine
 from tracegs.render import native
 from tracegs.render.rendering import resolve_backend
-from tracegs.utils import cpu_flags
 
 CASES = {
     # name: (gaussians, width, height, sh_degree, background)
@@ -90,7 +90,7 @@ def test_narrower_vector_build_gives_the_same_bits(tmp_path):
     every lane computes the same operations, so a narrower build renders the same bits."""
     if not native_available():
         pytest.skip("native extension not available")
-    flags = cpu_flags()
+    flags = this_machine().flags
     narrower = next((NARROWER_BUILD[f] for f in NARROWER_BUILD if f in flags), None)
     if narrower is None:
         pytest.skip("not an x86 CPU with AVX2 or AVX-512")

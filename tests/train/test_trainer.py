@@ -500,7 +500,8 @@ def test_a_bf16_run_is_rendered_in_fp32_on_cpus_without_hardware_bf16(
 
     cfg = _cfg(tiny_scene, tmp_path / "run", bf16=True)
     Trainer(cfg, progress=False).train()
-    monkeypatch.setattr(tracegs.run, "cpu_has_fast_bf16", lambda: fast_bf16)
+    machine = dataclasses.replace(tracegs.run.this_machine(), fast_bf16=fast_bf16)
+    monkeypatch.setattr(tracegs.run, "this_machine", lambda: machine)
     run = load_run(tmp_path / "run", device="cpu")
     model = run.model
     assert run.config.bf16 and model.bf16 == fast_bf16
@@ -519,7 +520,8 @@ def test_a_bf16_config_trains_in_fp32_on_cpus_without_hardware_bf16(
 ):
     import tracegs.run
 
-    monkeypatch.setattr(tracegs.run, "cpu_has_fast_bf16", lambda: fast_bf16)
+    machine = dataclasses.replace(tracegs.run.this_machine(), fast_bf16=fast_bf16)
+    monkeypatch.setattr(tracegs.run, "this_machine", lambda: machine)
     trainer = Trainer(
         _cfg(tiny_scene, tmp_path / "run", bf16=True), progress=False
     )  # (as --resume reads one)

@@ -3,7 +3,7 @@
 
 ``run_raster_bench()`` (CLI: ``tracegs bench raster [--isa native avx2] [--json FILE]``) times forward
 and forward + backward of :func:`tracegs.render.rasterize` for each backend and workload, natively or
-held to other instruction sets (``cpp.ISA_ENVIRONMENTS``, each in a process of its own); with
+held to other instruction sets (``machine.ISA_ENVIRONMENTS``, each in a process of its own); with
 ``json_path`` it writes a results record (``tracegs.results``) there.
 """
 
@@ -22,11 +22,11 @@ from pathlib import Path
 
 import torch
 
-from ..cpp import ISA_ENVIRONMENTS, json_of_process_held_to
+from ..machine import ISA_ENVIRONMENTS, json_of_process_held_to, resolve_device
 from ..render.random_scene import random_scene
 from ..render.rendering import available_backends, rasterize
 from ..results import make_record, write_record
-from ..utils import resolve_device, synchronize
+from ..utils import synchronize
 
 
 def _rss_mb() -> float:
@@ -145,7 +145,7 @@ def run_raster_bench(
     backward adds on top of what the process held before it (freed heap memory is returned to
     the OS first, glibc only; sampled every ms); on CUDA, the peak that PyTorch's allocator adds.
     ``device``: where the Gaussians live ('auto', 'cpu' or 'cuda'). ``isas``: instruction sets
-    (``cpp.ISA_ENVIRONMENTS``) other than ``("native",)`` run each in a child process, the native
+    (``machine.ISA_ENVIRONMENTS``) other than ``("native",)`` run each in a child process, the native
     backend only beside this CPU's own (rows with an ``isa``). Returns one row per backend and
     workload.
     """

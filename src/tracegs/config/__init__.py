@@ -5,7 +5,8 @@ that tyro turns into ``--help``. Sections: ``optim`` (learning rates, loss), ``d
 density control), ``deformation`` (f_defo), ``dynamics`` (f_trd), ``stage2`` (how stage 2 trains the
 fields, with the paper's Table 4 switches) and ``extrapolation`` (what happens after training: the
 handover, what holds still, free bodies; read after the last step and when rendering, never in
-training). Why each preset value is what it is: docs/DESIGN.md; the numbers behind it: docs/RESULTS.md.
+training). The model's sections are defined beside its code in ``models/``, and the model is handed
+only what it reads (``TrainConfig.model_config``). Why each preset value is what it is: docs/DESIGN.md; the numbers behind it: docs/RESULTS.md.
 A run folder holds the resolved config as ``config.json`` (``run.py``; plain JSON, never ``eval``).
 ``validate(cfg)`` (``config/validate.py``) checks every setting before anything is trained.
 """
@@ -20,10 +21,11 @@ from pathlib import Path
 from typing import Literal
 
 from ..extrapolate.settings import ExtrapolationConfig
+from ..machine import this_machine
+from ..models.config import ModelConfig, Stage2Config
 from ..models.deformation import DeformationConfig
 from ..models.dynamics import DynamicsConfig
-from ..utils import cpu_has_fast_bf16
-from .sections import DensifyConfig, OptimConfig, Stage2Config
+from .sections import DensifyConfig, OptimConfig
 from .validate import check_setting, flag_name, validate  # noqa: F401  (part of the config API)
 
 
@@ -113,6 +115,19 @@ class TrainConfig:
     def total_iterations(self) -> int:
         return self.static_iterations + (0 if self.method == "static" else self.dynamic_iterations)
 
+    def model_config(self) -> ModelConfig:
+        """The settings of this run's model (``TraceModel``): its sections, shared with this config."""
+        return ModelConfig(
+            method=self.method,
+            deformation=self.deformation,
+            dynamics=self.dynamics,
+            stage2=self.stage2,
+            sh_degree=self.sh_degree,
+            backend=self.backend,
+            camera_colour=self.camera_colour,
+            bf16=self.bf16,
+        )
+
 
 def paper() -> TrainConfig:
     """The paper's sizes: 8 x 256 fields, 3k static + 37k dynamic iterations, SH degree 3."""
@@ -126,7 +141,7 @@ def cpu_fast() -> TrainConfig:
         preset="cpu-fast",
         static_iterations=1500,
         dynamic_iterations=20000,
-        bf16=cpu_has_fast_bf16(),
+        bf16=this_machine().fast_bf16,
         random_background=True,
         init_points=5000,
         sh_degree=1,

@@ -74,7 +74,7 @@ class ExtrapolationConfig:
     ``joint_law_tolerance`` times the learned physics does; elsewhere the learned physics stays (the
     paper's extrapolation) and the run summary says why. A part that turns on a joint of its own on
     such a part (a box spinning on a turntable) is put on that joint in the carrier's frame, and a
-    moving group that bounces on a floor within the span on the ``bounce`` law (``thrown.py``), each
+    moving group that bounces on a floor within the span on the ``bounce`` law (``extrapolate/thrown.py``), each
     under the same backtest. Off = the paper's extrapolation (``paper``); on in ``cpu-fast`` and
     ``capture``."""
     joint_law_holdout: float = 0.25

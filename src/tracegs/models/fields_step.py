@@ -54,12 +54,12 @@ class _Chain:
 
 def applies(model, t_prime: float, t: float) -> bool:
     """Whether ``training_state`` can take the one node for this step of ``model`` (a ``TraceModel``)."""
-    cfg, stage = model.cfg, model.cfg.stage2
+    stage = model.stage2
     if not ENABLED or not torch.is_grad_enabled() or model.dynamics is None:
         return False
-    if not isinstance(model.deformation, DeformationField) or not cfg.deformation.detach_input:
+    if not isinstance(model.deformation, DeformationField) or not model.deformation.cfg.detach_input:
         return False
-    dyn = cfg.dynamics
+    dyn = model.dynamics.cfg
     if dyn.order != 2 or not dyn.equivalent or dyn.time_frequencies is None:
         return False
     if stage.integrator != "rk2" or float(t) == float(t_prime):
@@ -87,7 +87,7 @@ def applies(model, t_prime: float, t: float) -> bool:
 def training_state(model, t_prime: float, t: float, t_check: float | None):
     """``TraceModel.training_state`` for a step where ``applies``: the Gaussians at ``t`` and the
     weighted auxiliary losses, by one autograd node."""
-    stage, dyn = model.cfg.stage2, model.dynamics
+    stage, dyn = model.stage2, model.dynamics
     g, rows = model.gaussians, model.moving_rows
     defo = model.deformation
     head = defo.heads

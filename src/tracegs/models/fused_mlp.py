@@ -21,7 +21,7 @@ import functools
 import torch
 
 from ..cpp import EXTENSIONS
-from ..utils import cpu_flags
+from ..machine import this_machine
 from .encoding import fold_single_rows
 
 EXTENSION = EXTENSIONS["tracegs_mlp_cpu"]
@@ -66,7 +66,7 @@ def bf16_products() -> bool:
     """Whether the op serves bf16 autocast here: built for AVX512-BF16, on a CPU without AMX tiles
     (there oneDNN's tile products are the measured path; docs/DESIGN.md, "bf16 fields")."""
     ops = EXTENSION.load()
-    return ops is not None and bool(ops.bf16_products()) and "amx_bf16" not in cpu_flags()
+    return ops is not None and bool(ops.bf16_products()) and "amx_bf16" not in this_machine().flags
 
 
 @functools.cache

@@ -19,6 +19,7 @@ from ..physics.integrate import acceleration_consistency, integrate_rows, integr
 from ..render import rasterize
 from . import fields_step
 from .colour import CameraColour
+from .config import ModelConfig
 from .deformation import deform_rows, make_deformation_field
 from .dynamics import DynamicsField
 
@@ -28,17 +29,25 @@ class TraceModel(nn.Module):
 
     def __init__(
         self,
-        cfg,
+        settings: ModelConfig,
         gaussians: nn.ParameterDict,
         aabb: torch.Tensor,
         frame_interval: float,
         camera_ids: list[int] | None = None,
     ):
-        """``camera_ids``: the training cameras whose colours ``cfg.camera_colour`` learns (a trained
-        run's are read from its checkpoint)."""
+        """``settings``: what the model is made of (``TrainConfig.model_config``); ``camera_ids``: the
+        training cameras whose colours ``settings.camera_colour`` learns (a trained run's are read from
+        its checkpoint)."""
         super().__init__()
-        self.cfg = cfg
-        self.bf16 = cfg.bf16
+        self.method = settings.method
+        """``trace``, ``defgs`` or ``static``."""
+        self.stage2 = settings.stage2
+        """How stage 2 trains the fields (``Stage2Config``; its ``integrator`` also extrapolates)."""
+        self.sh_degree = settings.sh_degree
+        """The SH degree of the trained colours, that every image of the run is drawn with."""
+        self.backend = settings.backend
+        """The rasteriser backend every image is drawn with (``render.rasterize``'s)."""
+        self.bf16 = settings.bf16
         """bf16 autocast of the fields on CPU; ``run.fields_in_bf16`` (loading and training) keeps it only on
         CPUs with hardware bf16."""
         self.gaussians = gaussians
@@ -52,10 +61,11 @@ class TraceModel(nn.Module):
         self._frame_scale: float | None = None  # the scale as a number; None: the world's frame
         self.register_load_state_dict_pre_hook(_default_field_frame)
         self.register_load_state_dict_post_hook(_sync_frame_after_load)
-        uses_deformation = cfg.method == "defgs" or (cfg.method == "trace" and cfg.stage2.use_deformation)
-        self.deformation = make_deformation_field(cfg.deformation, aabb) if uses_deformation else None
-        self.dynamics = DynamicsField(cfg.dynamics) if cfg.method == "trace" else None
-        self.camera_colour = CameraColour(camera_ids or []) if cfg.camera_colour else None
+        method = settings.method
+        uses_deformation = method == "defgs" or (method == "trace" and settings.stage2.use_deformation)
+        self.deformation = make_deformation_field(settings.deformation, aabb) if uses_deformation else None
+        self.dynamics = DynamicsField(settings.dynamics) if method == "trace" else None
+        self.camera_colour = CameraColour(camera_ids or []) if settings.camera_colour else None
         self.static_mask: torch.Tensor | None = None
         """[N] bool: Gaussians marked static during training (``stage2.skip_static``), kept at their
         canonical geometry at every time and skipped by the fields; None: the fields move them all."""
@@ -138,7 +148,7 @@ class TraceModel(nn.Module):
             return [{name: g[name] for name in names} for _ in times]
         rows = self._moving_rows()
         canonical = [g[name] for name in names]
-        x0 = canonical[0].detach() if self.cfg.deformation.detach_input else canonical[0]
+        x0 = canonical[0].detach() if self.deformation.cfg.detach_input else canonical[0]
         x0 = self.to_field_frame(x0 if rows is None else x0[rows])
         n = x0.shape[0]
         if len(times) == 1:  # one time for all points: the field takes it as a bias (``linear_of_parts``)
@@ -219,7 +229,7 @@ class TraceModel(nn.Module):
     def training_state(
         self, t_prime: float, t: float, t_check: float | None = None
     ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
-        """Gaussians for rendering frame ``t`` in stage 2 (METHOD.md, Training), and the step's
+        """Gaussians for rendering frame ``t`` in stage 2 (the paper, Section 3.3), and the step's
         weighted auxiliary losses by name (``acceleration``, when ``stage2.acceleration_consistency``
         is set).
 
@@ -230,7 +240,7 @@ class TraceModel(nn.Module):
         ``fields_step.applies`` (the CPU presets' fields), the same computation runs as one autograd
         node (``models/fields_step.py``, the same bits).
         """
-        stage = self.cfg.stage2
+        stage = self.stage2
         if self.dynamics is None:
             return self.deform(t), {}
         if fields_step.applies(self, t_prime, t):  # (the same step as one autograd node)
@@ -256,7 +266,7 @@ class TraceModel(nn.Module):
         )
         losses = {}
         share = 1.0 if rows is None else rows.numel() / x_start.shape[0]  # a mean over all Gaussians
-        learns_accelerations = self.cfg.dynamics.order >= 2 and stage.physics_derivation
+        learns_accelerations = self.dynamics.cfg.order >= 2 and stage.physics_derivation
         # (not when every Gaussian is marked static: a mean over no particles is NaN)
         t_check = t if t_check is None else t_check
         if stage.acceleration_consistency > 0 and learns_accelerations and t_check != t_prime and len(x_run):
@@ -282,19 +292,6 @@ class TraceModel(nn.Module):
         for k in range(samples + 1):
             most = torch.maximum(most, (self.deform(t_max * k / samples)["means"] - x0).norm(dim=-1))
         return most
-
-    # (interim: the settings this model was built with, until it takes its sections)
-    @property
-    def method(self) -> str:
-        return self.cfg.method
-
-    @property
-    def sh_degree(self) -> int:
-        return self.cfg.sh_degree
-
-    @property
-    def stage2(self):
-        return self.cfg.stage2
 
     @property
     def dt_max(self) -> float:
@@ -339,7 +336,7 @@ class TraceModel(nn.Module):
             sh_degree=sh_degree if colors is None else None,
             background=background,
             near_plane=self._near,
-            backend=self.cfg.backend,
+            backend=self.backend,
         )
 
 

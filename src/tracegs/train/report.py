@@ -9,8 +9,9 @@ import math
 from .. import __version__
 from ..config import TrainConfig
 from ..data.dataset import ViewDataset
+from ..machine import this_machine
 from ..render.rendering import resolve_backend
-from ..results import current_commit, machine_description
+from ..results import current_commit
 from .state import TrainState
 
 
@@ -91,5 +92,5 @@ def summary(
         "fields_dtype": "bf16" if model.fields_bf16 else "fp32",
         "tracegs": __version__,
         "commit": current_commit(),
-        "machine": machine_description(),
+        "machine": this_machine().record(),
     }

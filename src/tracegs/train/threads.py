@@ -18,12 +18,12 @@ from dataclasses import dataclass, field
 
 import torch
 
+from ..machine import this_machine
+
 RECHECK_SECONDS = 30.0
 """How often a training counts the busy cores again (the check itself reads two small /proc files)."""
 SAMPLE_SECONDS = 0.2
 """How long the first count watches the cores."""
-TORCH_THREADS = torch.get_num_threads()
-"""torch's own thread count (one per core it may use), the most a training takes."""
 
 
 def cpu_jiffies(cpus: set[int], stat: str | None = None) -> tuple[int, int]:
@@ -71,8 +71,10 @@ class ThreadPolicy:
     at ``check`` every ``RECHECK_SECONDS``; with ``OMP_NUM_THREADS`` set, torch's count throughout."""
 
     threads: int = 0
-    most: int = TORCH_THREADS
-    cpus: set[int] = field(default_factory=lambda: set(os.sched_getaffinity(0)))
+    most: int = field(default_factory=lambda: this_machine().threads)
+    """The most threads it takes (default: torch's own count, one per core it may use)."""
+    cpus: set[int] = field(default_factory=lambda: set(this_machine().cpus))
+    """The CPUs whose busy cores it counts (default: those this process may run on)."""
     changes: list[dict] = field(default_factory=list)
     """Every change: {"seconds", "busy", "threads"} (the run summary reports them)."""
     _last: tuple[int, int, float] | None = None

@@ -25,6 +25,7 @@ from ..data.dataset import ViewDataset, frame_interval
 from ..data.frames import DatasetError
 from ..data.scene import load_scene
 from ..extrapolate import calibrate
+from ..machine import resolve_device
 from ..models.trace import TraceModel
 from ..run import (
     CHECKPOINT,
@@ -42,7 +43,7 @@ from ..run import (
     save_extrapolation,
     truncate_log,
 )
-from ..utils import atomic_write_text, remove_temporaries, resolve_device, seed_everything, synchronize
+from ..utils import atomic_write_text, remove_temporaries, seed_everything, synchronize
 from .checkpoint import Checkpoints, check_resumable, checkpoint, restore, start_from, training_fingerprint
 from .foreground import hold_surroundings, mark_outside_masks
 from .guard import NonFinite, check_parameters, check_step, diverged, interrupt_at_step_end
@@ -97,7 +98,8 @@ class Trainer:
         log = tqdm.write if progress else (lambda _message: None)
         gaussians = initial_gaussians(cfg, self.aabb, self.device, log, self.data.scene.frames)
         cameras = sorted({v.camera_id for v in self.data.views if v.camera_id is not None})
-        self.model = TraceModel(cfg, gaussians, self.aabb, self.dt_frame, cameras).to(self.device)
+        settings = cfg.model_config()
+        self.model = TraceModel(settings, gaussians, self.aabb, self.dt_frame, cameras).to(self.device)
         self.model.bf16 = fields_in_bf16(cfg)  # (not cfg.bf16 alone: a config made on another CPU)
         self.model.set_field_frame(*field_frame(cfg, self.data))
         self.model.set_near_plane(cfg.near_plane * capture_scale(self.data))
