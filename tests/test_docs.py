@@ -117,3 +117,12 @@ def test_links_of_the_docs_resolve(pages):
     assert files
     broken = broken_links(files)
     assert not broken, "links to nothing:\n" + "\n".join(broken)
+
+
+LONGEST = {"README.md": 200, "docs/RESULTS.md": 80, "docs/PHYSICS.md": 300, "docs/DESIGN.md": 300}
+"""The pages a user reads first, and the most lines each may have (read in five minutes)."""
+
+
+@pytest.mark.parametrize("page", LONGEST)
+def test_the_first_pages_stay_short(page):
+    assert len((REPO / page).read_text().splitlines()) <= LONGEST[page]

@@ -9,7 +9,7 @@ import torch
 
 import tracegs
 from tracegs.config import PRESETS, apply_overrides, make_config
-from tracegs.extrapolate import ExtrapolationState, gaussians_at
+from tracegs.extrapolate import ExtrapolationState, Predictor
 from tracegs.run import load_run
 from tracegs.train.trainer import Trainer
 
@@ -63,7 +63,7 @@ def test_every_ablation_switch_trains_and_renders_the_future(tiny_scene, tmp_pat
     run = load_run(tmp_path / "run", device="cpu")
     assert run.config == cfg
     for t in (0.5, 1.2):
-        state = gaussians_at(run.model, run.state, t)
+        state = run.predictor.gaussians_at(t)
         assert torch.isfinite(state["means"]).all() and torch.isfinite(state["quats"]).all()
 
 
@@ -325,7 +325,7 @@ def test_new_model_is_no_motion(tiny_scene, tmp_path):
         model, g = trainer.model, trainer.model.gaussians
         assert torch.equal(model.deform(0.3)["means"], g["means"])
         for t in (0.0, 0.3, 1.4):
-            state = gaussians_at(model, ExtrapolationState(t_max=0.5), t)
+            state = Predictor(model, ExtrapolationState(t_max=0.5)).gaussians_at(t)
             assert torch.allclose(state["means"], g["means"], atol=tol)
             assert torch.allclose(state["scales"], g["scales"])
 
@@ -382,7 +382,7 @@ def test_skip_static_moves_only_the_moving_gaussians_and_those_exactly(tiny_scen
     static = torch.rand(g["means"].shape[0], generator=torch.Generator().manual_seed(1)) < 0.5
 
     def extrapolated():
-        return gaussians_at(model, ExtrapolationState(t_max=0.5), 1.2)
+        return Predictor(model, ExtrapolationState(t_max=0.5)).gaussians_at(1.2)
 
     whole = [model.deform(0.3), model.training_state(0.25, 0.5)[0], extrapolated()]
     model.set_static_mask(static)
