@@ -23,15 +23,15 @@ def _script(name: str):
     return module
 
 
-continual, demo_time, fields_floor, horizon = (
-    _script(n) for n in ("continual", "demo_time", "fields_floor", "horizon")
-)
-lpips_calibration, nonconstant_forces = _script("lpips_calibration"), _script("nonconstant_forces")
-panoptic, segmentation, training_speed = (_script(n) for n in ("panoptic", "segmentation", "training_speed"))
+appearance_ceiling, continual, demo_time = map(_script, ("appearance_ceiling", "continual", "demo_time"))
+fields_floor, horizon, lpips_calibration = map(_script, ("fields_floor", "horizon", "lpips_calibration"))
+nonconstant_forces, panoptic, segmentation = map(_script, ("nonconstant_forces", "panoptic", "segmentation"))
+static_quality, training_speed = map(_script, ("static_quality", "training_speed"))
 
 NOTE = "Round 0 trains 1000 static + 4000 dynamic steps, each later round 1000."
 DTYPE_ROW = {"what": training_speed.DTYPE_ROWS, "setting": "bf16, 2 thread(s)"}
 NOTES = {
+    "appearance_ceiling": appearance_ceiling.record_notes(12),
     "continual": continual.record_notes(),
     "continual, --note": continual.record_notes(NOTE),
     "fields_floor": fields_floor.record_notes(6),
@@ -43,6 +43,7 @@ NOTES = {
     "panoptic, --note": panoptic.record_notes("TRACE is the capture preset as it ships."),
     "segmentation": segmentation.record_notes(),
     "segmentation, --note": segmentation.record_notes("Panoptic's masks are foreground / background."),
+    "static_quality": static_quality.record_notes("fan", 40),
     "training_speed": training_speed.record_notes(Path("runs/demo/trace"), [{"what": "training step"}]),
     "training_speed, bf16": training_speed.record_notes(Path("runs/demo/trace"), [DTYPE_ROW]),
     "raster": raster.record_notes(("native",)),
