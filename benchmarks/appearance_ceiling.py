@@ -14,6 +14,17 @@ from tracegs.data.synth.ceiling import appearance_ceiling
 from tracegs.results import machine_description, make_record, write_record
 
 
+def record_notes(mean_frames: int) -> str:
+    """The record's notes: what the two bounds are (``mean_frames``: the training frames the mean
+    bound averages) and what `lowest_part` names."""
+    return (
+        "The best extrapolation a model of constant-colour Gaussians can reach: each scene's extrapolation "
+        "split rendered with the exact geometry and motion but each surface point's appearance frozen, at "
+        f"the handover (`ceiling_handover`) or averaged over {mean_frames} training frames (`ceiling_mean`). "
+        "`lowest_part` is the part with the lowest bound at the handover."
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("folders", nargs="+", type=Path)
@@ -55,7 +66,8 @@ def main() -> None:
         folders = " ".join(str(f) for f in args.folders)
         command = f".venv/bin/python benchmarks/appearance_ceiling.py {folders} --json {args.json}"
         title = "Appearance ceiling: the best future PSNR of constant-colour Gaussians on exact motion"
-        write_record(args.json, make_record("appearance-ceiling", rows, command, title=title))
+        notes = record_notes(args.mean_frames)
+        write_record(args.json, make_record("appearance-ceiling", rows, command, title=title, notes=notes))
 
 
 if __name__ == "__main__":

@@ -20,6 +20,22 @@ from pathlib import Path
 
 METHODS = ("trace", "defgs")
 LABEL = {"trace": "TRACE", "defgs": "DefGS"}
+COLUMNS = ["scene", "method", "rounds", "observed until", "psnr per round", "psnr", "ssim", "lpips", "wall s"]
+NOTES = (
+    "Each round trains on the frames up to its window's end (`observed until`; the first from scratch, "
+    "each next one from the round before with 25% of the steps) and is scored on the next window; psnr, "
+    "ssim, lpips average over the rounds, wall s is the whole sequence."
+)
+
+
+def record_notes(note: str = "") -> str:
+    """The record's notes: :data:`NOTES`, then ``note`` (``--note``: the one caveat of these runs, e.g.
+    the steps of a round); ValueError if ``note`` is more than one sentence."""
+    from tracegs.results import sentences
+
+    if len(sentences(note)) > 1:
+        raise ValueError(f"--note must be one sentence (the notes have at most two), got {note!r}")
+    return f"{NOTES} {note}".strip()
 
 
 def run_one(scene: Path, method: str, runs: Path, args) -> dict:
@@ -73,14 +89,18 @@ def main() -> None:
     ap.add_argument("--json", type=Path)
     ap.add_argument("--figures", type=Path, default=Path("docs/figures/continual"))
     ap.add_argument(
-        "--note", default="", help="a sentence for the record's notes (the paper's numbers, the data)"
+        "--note", default="", help="the notes' second sentence: the one caveat (e.g. the steps of a round)"
     )
     ap.add_argument("--title", default="Continual learning: TRACE and DefGS per round")
     ap.add_argument(
         "--benchmark", default="continual", help="the record's name (continual-panoptic for basketball)"
     )
     args = ap.parse_args()
-    rows, windows = [], {}
+    try:
+        notes = record_notes(args.note)
+    except ValueError as err:
+        ap.error(str(err))
+    rows = []
     for scene in args.scenes:
         tables = {m: run_one(scene, m, args.runs, args) for m in args.methods}
         name = scene.name.split("_")[0]
@@ -90,9 +110,9 @@ def main() -> None:
                 print(f"{name} {LABEL[method]} round {r['round']}: observed until {r['observed_until']:.3f}, "
                       f"predicted until {r['extrapolated_until']:.3f}: PSNR {r['psnr']:.2f}, SSIM {r['ssim']:.3f}, "
                       f"{r['wall_s']:.0f} s")  # fmt: skip
-            windows[name] = ", ".join(f"{r['observed_until']:.3f}" for r in table["rounds"])
             avg = table["average"]
             rows.append({"scene": name, "method": LABEL[method], "rounds": len(table["rounds"]),
+                         "observed until": " / ".join(f"{r['observed_until']:.3f}" for r in table["rounds"]),
                          "psnr per round": " / ".join(f"{r['psnr']:.1f}" for r in table["rounds"]),
                          "psnr": round(avg["psnr"], 2), "ssim": round(avg["ssim"], 3),
                          "lpips": round(avg["lpips_vgg"], 3) if "lpips_vgg" in avg else None,
@@ -102,9 +122,8 @@ def main() -> None:
         rows.append({"scene": "all", "method": LABEL[method], "rounds": sum(a["rounds"] for a in mine),
                      "psnr": round(sum(a["psnr"] for a in mine) / len(mine), 2),
                      "ssim": round(sum(a["ssim"] for a in mine) / len(mine), 3)})  # fmt: skip
-    columns = ["scene", "method", "rounds", "psnr per round", "psnr", "ssim", "lpips", "wall s"]
     for row in rows:
-        print("  ".join(str(row.get(c, "")) for c in columns))
+        print("  ".join(str(row.get(c, "")) for c in COLUMNS))
     if args.json:
         from tracegs.results import make_record, write_record
 
@@ -118,17 +137,8 @@ def main() -> None:
             + (f" --train-flags {shlex.quote(args.train_flags)}" if args.train_flags else "")
             + f" --json {args.json}"
         )
-        notes = (
-            "Each round trains on the frames up to its window's end (the first from scratch, each next one "
-            "from the round before: 25% of the stage-2 steps, no static stage, no densification) and is "
-            "scored on every camera's images in the next window; psnr, ssim, lpips: the average over the "
-            "rounds (all: over the scenes); wall s: the whole sequence, training and scoring. Rounds observe up to "
-            + "; ".join(f"{k}: {v}" for k, v in windows.items())
-            + ". "
-            + args.note
-        ).strip()
         record = make_record(args.benchmark, rows, command, title=args.title,
-                             columns=columns, notes=notes)  # fmt: skip
+                             columns=COLUMNS, notes=notes)  # fmt: skip
         write_record(args.json, record)
 
 

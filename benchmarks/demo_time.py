@@ -28,7 +28,14 @@ import time
 from pathlib import Path
 
 from tracegs.machine import ISA_ENVIRONMENTS
-from tracegs.results import current_commit, machine_description, make_record, read_record, write_record
+from tracegs.results import (
+    current_commit,
+    machine_description,
+    make_record,
+    page_notes,
+    read_record,
+    write_record,
+)
 
 COLUMNS = ["cpu", "fields", "train_s", "train_min", "command_min", "extrap_mae_psnr", "code", "date"]
 TITLE = "The README's demo (`fan`, `cpu-fast`): training time on 2 CPU cores, per CPU"
@@ -76,6 +83,16 @@ def merge_row(rows: list[dict], new: dict) -> list[dict]:
     return merged if placed else [*merged, new]
 
 
+def demo_record(old: dict | None, row: dict) -> dict:
+    """The demo record with ``row`` merged into the rows of the ``old`` record (``merge_row``), whose
+    notes it keeps (at most two sentences, as a committed record has them)."""
+    rows = merge_row(old["rows"] if old else [], row)
+    notes = page_notes(old.get("notes")) if old else None
+    record = make_record("demo", rows, COMMAND, title=TITLE, columns=COLUMNS, notes=notes)
+    record["machine"] = "2 cores each, the CPUs of the rows"
+    return record
+
+
 def time_demo(out: Path, isa: str) -> float:
     """``tracegs demo --out out`` in a new process held to ``isa``; its wall time in seconds."""
     shutil.rmtree(out, ignore_errors=True)
@@ -99,12 +116,7 @@ def main() -> None:
     print(json.dumps(row))
     if args.json:
         old = read_record(args.json) if args.json.is_file() else None
-        rows = merge_row(old["rows"] if old else [], row)
-        record = make_record(
-            "demo", rows, COMMAND, title=TITLE, columns=COLUMNS, notes=old and old.get("notes")
-        )
-        record["machine"] = "2 cores each, the CPUs of the rows"
-        write_record(args.json, record)
+        write_record(args.json, demo_record(old, row))
         print(f"{args.json}: the row is in; its notes compare rows by their numbers: read them again")
 
 

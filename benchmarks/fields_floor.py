@@ -283,6 +283,18 @@ def measure_run(run: Path, fields: list[str], blocks: int = 6) -> list[dict]:
     return rows
 
 
+def record_notes(blocks: int) -> str:
+    """The record's notes: what the columns measure, and how (``blocks``: blocks of 20 steps a row)."""
+    return (
+        "One step's fields (f_defo, f_trd, RK2, the acceleration consistency) forward and backward on the "
+        "run's Gaussians, without the rasteriser; floor = the step's matrix-product FLOPs at the rate of a "
+        "2048^2 product in the same dtype and threads, `gemms_alone` and `mlps_alone` the step's matrix "
+        f"products and fused MLP calls replayed alone. `measured` is the fastest of {blocks} blocks of 20 "
+        "steps (the kernels in alternate blocks of one process), `fixed` the part that does not scale with "
+        "the Gaussians."
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--run", type=Path, required=True, help="a trained run folder (e.g. the demo's)")
@@ -312,6 +324,8 @@ def main() -> None:
         command = [sys.executable, __file__, "--run", str(args.run), "--fields", *fields, "--rows-only"]
         command += ["--blocks", str(args.blocks)]
         rows += [{"isa": isa, **row} for row in json_of_process_held_to(isa, command)]
+    if not kept:  # (the caveat a reader needs, where glibc's mallopt was not there to keep the heap)
+        rows = [{**row, "freed_memory_kept": False} for row in rows]
     for row in rows:
         print(row)
     if args.json:
@@ -321,24 +335,7 @@ def main() -> None:
             f"tracegs demo; python benchmarks/fields_floor.py --run {args.run} --fields {' '.join(args.fields)} "
             f"--isa {' '.join(args.isa)} --blocks {args.blocks} --json {args.json}",
             title="The fields of one stage-2 step against their FLOP floor",
-            notes=(
-                "One step's fields (f_defo at t', f_trd, RK2, the acceleration consistency) forward and "
-                "backward on the trained run's Gaussians, without the rasteriser; FLOPs of the matrix "
-                "products by torch.utils.flop_counter; floor = those FLOPs at the rate of a 2048^2 matrix "
-                "product in the same dtype and threads; ratio = measured / floor; gemms_alone: the step's "
-                "own matrix products (shapes, strides, dtypes) replayed alone; mlps_alone: the step's fused "
-                "MLP calls (forward and backward, their inputs and settings) replayed alone, the fields "
-                f"without the glue between them. measured: the fastest of {args.blocks} "
-                "blocks of 20 steps, the kernels in alternate blocks (native ops: the RK2, the positional "
-                "encoding, f_defo's output applied to the Gaussians; fused MLP: float32, and bf16 with "
-                "AVX512-BF16 without AMX; one node: all of them as the step's one autograd node, "
-                "models/fields_step.py; gemms_alone: the PyTorch layers' products). fixed: the same step "
-                "with 16 moving Gaussians, the part of measured that does not scale with them (Python, "
-                "autograd, the ops' calls). "
-                f"The heap keeps freed memory (glibc mallopt: {'yes' if kept else 'not available'}), as a "
-                "training's grown heap does. The run: the README demo's (fan, cpu-fast), alone on the "
-                "cores."
-            ),
+            notes=record_notes(args.blocks),
         )
         write_record(args.json, record)
 

@@ -110,6 +110,17 @@ def summary(scene: str, label: str, r: dict) -> dict:
     }
 
 
+def record_notes(factor: float, cameras: int, figures: Path) -> str:
+    """The record's notes: what each row renders and scores (to ``factor`` times the training end, on
+    ``cameras`` new cameras), what 'in sight' counts, where the ``figures`` are."""
+    return (
+        f"Each run rendered from the end of its training to {factor:g}x that time on its first {cameras} "
+        "new cameras, PSNR where the scene has images; 'in sight' is the share of Gaussians whose centres "
+        "stay in the box of their positions at the end of training, padded by half its size. "
+        f"Figures: {figures.as_posix()}/."
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+", help="RUN=LABEL")
@@ -137,12 +148,7 @@ def main() -> None:
     if args.json:
         command = f"python benchmarks/horizon.py {' '.join('RUN=' + s.partition('=')[2] for s in args.runs)}"
         command += f" --factor {args.factor:g} --json {args.json}"
-        notes = (
-            f"Each run rendered from the end of its training to {args.factor:g}x that time on its first "
-            f"{args.cameras} new cameras (cameras training never saw); PSNR where the scene has images; "
-            "'in sight': the share of the Gaussians whose centres stay in the box of their positions at "
-            "the end of training, padded by half its size. Figures: docs/figures/horizon/."
-        )
+        notes = record_notes(args.factor, args.cameras, args.figures)
         record = make_record("horizon", rows, command, title="Long horizons: to twice the training span",
                              columns=columns, notes=notes)  # fmt: skip
         write_record(args.json, record)

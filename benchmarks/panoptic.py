@@ -22,10 +22,23 @@ from tracegs.data.dataset import frame_interval
 from tracegs.data.frames import load_image
 from tracegs.data.scene import load_scene
 from tracegs.eval.protocol import evaluate_run
-from tracegs.results import make_record, write_record
+from tracegs.results import make_record, sentences, write_record
 from tracegs.run import load_run
 
 NEXT = 10  # frames of the short future scored on the test cameras
+COLUMNS = ["method", "split", "frames", "psnr", "mae_psnr", "ssim", "train s", "steps", "gaussians"]
+NOTES = (
+    "27 training and 4 test cameras x 150 frames, trained on frames 0-111 with no point cloud: the "
+    "Gaussians start on the visual hull of the first frame's masks and on the surroundings the cameras see."
+)
+
+
+def record_notes(note: str = "") -> str:
+    """The record's notes: :data:`NOTES`, then ``note`` (``--note``: the one caveat of these runs, e.g.
+    how the rows' methods differ); ValueError if ``note`` is more than one sentence."""
+    if len(sentences(note)) > 1:
+        raise ValueError(f"--note must be one sentence (the notes have at most two), got {note!r}")
+    return f"{NOTES} {note}".strip()
 
 
 def scores(run: Path, label: str | None = None) -> tuple[list[dict], dict]:
@@ -104,24 +117,32 @@ def main() -> None:
     ap.add_argument("runs", nargs="+", help="run folders, each RUN or RUN=LABEL (the rows' method name)")
     ap.add_argument("--json", type=Path, help="write the results record here (docs/results/panoptic.json)")
     ap.add_argument("--figures", type=Path, default=Path("docs/figures/panoptic"))
-    ap.add_argument("--note", default="", help="a sentence added to the record's notes")
+    ap.add_argument(
+        "--note",
+        default="",
+        help="the notes' second sentence: the one caveat (e.g. how the rows' methods differ)",
+    )
     args = ap.parse_args()
-    rows, notes = [], []
+    try:
+        notes = record_notes(args.note)
+    except ValueError as err:
+        ap.error(str(err))
+    rows = []
     for spec in args.runs:
         path, _, label = spec.partition("=")
         run = Path(path)
         r, facts = scores(run, label or None)
-        rows += r
+        run_facts = {
+            "train s": round(facts["train_seconds"]),
+            "steps": facts["iterations"],
+            "gaussians": facts["gaussians"],
+        }
+        rows += [{**row, **run_facts} for row in r]
         name = r[0]["method"]
         if not label:
             figure(run, args.figures / f"{name.lower()}_test_cameras.png", 56 / 149)
-        notes.append(
-            f"{name}: {facts['train_seconds']:.0f} s of training ({facts['iterations']} steps), "
-            f"{facts['gaussians']} Gaussians."
-        )
-    columns = ["method", "split", "frames", "psnr", "mae_psnr", "ssim"]
     for row in rows:
-        print("  ".join(str(row[c]) for c in columns))
+        print("  ".join(str(row[c]) for c in COLUMNS))
     if args.json:
         command = "tracegs train --data ../shared/data/panoptic/basketball --run RUN --preset capture --downscale 2 --t-train-end 0.75 [--method defgs] && python benchmarks/panoptic.py RUN_TRACE RUN_DEFGS"  # fmt: skip
         record = make_record(
@@ -129,19 +150,8 @@ def main() -> None:
             rows,
             command + f" --json {args.json}",
             title="A real multi-view capture: CMU Panoptic `basketball` at 320x180 px (`capture` preset)",
-            columns=columns,
-            notes=" ".join(
-                [
-                    "27 training and 4 test cameras (0, 10, 15, 30) x 150 frames, trained on frames 0-111 "
-                    "(t <= 0.75). No point cloud: the Gaussians start on the visual hull of the first "
-                    "frame's seg/ masks, on the dome seen by the first frame's cameras (`data/surroundings.py`), "
-                    "and 2000 at random; per-camera colour; what lies outside the region the masks sweep "
-                    "stands still in stage 2. Dynamic 3D Gaussians reports 28.7 dB over six Panoptic "
-                    "sequences at 640x360 on a GPU, from its point cloud.",
-                    *notes,
-                    args.note,
-                ]
-            ).strip(),
+            columns=COLUMNS,
+            notes=notes,
         )
         write_record(args.json, record)
 

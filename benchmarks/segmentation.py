@@ -15,14 +15,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
 
 from tracegs.data.scene import load_scene
-from tracegs.results import make_record, write_record
+from tracegs.results import make_record, sentences, write_record
 from tracegs.run import load_config
 from tracegs.segment import SegmentConfig, segment_run
 from tracegs.segment.truth import merged_parts
@@ -45,14 +44,43 @@ def scene_name(data: Path) -> str:
 
 
 SHOWN = ("ap", "pq", "f1", "miou")
+COLUMNS = ["scene", "method", "K", *(f"{m} {tag}" for tag in ("train", "future") for m in SHOWN)]
+COLUMNS += ["trained", "ground truth", "segment s", "score s"]
+NOTES = (
+    "Features are the paper's (the rigid motion fitted to f_trd's velocities of each Gaussian's 24 "
+    "neighbours), K-means, then rounds in which each Gaussian joins the segment whose rigid motion explains "
+    "its own (docs/SEGMENTATION.md)."
+)
+CAVEAT = (
+    "Every masked image is scored, the background one segment; Panoptic's masks give foreground / "
+    "background only."
+)
+"""The notes' second sentence unless ``--note`` gives another."""
 
 
-def rows_of(scene: str, method: str, k_mode: str, report: dict) -> list[dict]:
-    """One row: the scores in percent at the training times and at the future times."""
+def record_notes(note: str = "") -> str:
+    """The record's notes: :data:`NOTES`, then ``note`` (``--note``: the one caveat a reader needs),
+    :data:`CAVEAT` when it is empty; ValueError if ``note`` is more than one sentence."""
+    if len(sentences(note)) > 1:
+        raise ValueError(f"--note must be one sentence (the notes have at most two), got {note!r}")
+    return f"{NOTES} {note or CAVEAT}"
+
+
+def ground_truth(merged: list[list[str]]) -> str:
+    """The ground truth's segments in a cell: its parts, and which were ``merged`` (moving alike)."""
+    return "parts" + (f" ({'; '.join(', '.join(group) for group in merged)} merged)" if merged else "")
+
+
+def rows_of(scene: str, method: str, k_mode: str, report: dict, **facts) -> list[dict]:
+    """One row: the scores in percent at the training times and at the future times, the run's
+    ``facts`` (how it was trained, the ground truth), the seconds to segment and to score."""
     row = {"scene": scene, "method": method, "K": f"{report['k']} ({k_mode})"}
     for when, tag in (("training_times", "train"), ("future_times", "future")):
         s = report["scores"][when]
         row.update({f"{m} {tag}": round(100 * s[m], 2) for m in SHOWN})
+    seconds = report.get("seconds", {})
+    row.update(facts)
+    row.update({f"{k} s": round(seconds[k], 1) for k in ("segment", "score") if k in seconds})
     return [row]
 
 
@@ -73,11 +101,13 @@ def main() -> None:
         "--json", type=Path, help="write the results record here (docs/results/segmentation.json)"
     )
     ap.add_argument("--figures", type=Path, default=Path("docs/figures/segmentation"))
-    ap.add_argument(
-        "--note", default="", help="a sentence added to the record's notes (e.g. where the runs differ)"
-    )
+    ap.add_argument("--note", default="", help="the notes' second sentence (default: the scoring's caveat)")
     args = ap.parse_args()
-    rows, seconds, notes = [], [], []
+    try:
+        notes = record_notes(args.note)
+    except ValueError as err:
+        ap.error(str(err))
+    rows = []
     for run in args.runs:
         cfg = load_config(run / "config.json")
         data = Path(cfg.data)
@@ -87,14 +117,14 @@ def main() -> None:
         size = f"{camera.width}x{camera.height} px" if camera.width != camera.height else f"{camera.width} px"
         trained = f"`--preset {cfg.preset}`, {size}"
         flow = SegmentConfig(features="flow")
-        started = time.perf_counter()
         if k is None:  # foreground masks only (Panoptic): K chosen, the flow baseline with the same K
+            facts = {"trained": trained, "ground truth": "foreground / background"}
             given = segment_run(run, auto_k=True)
-            seconds.append(time.perf_counter() - started)
-            rows += rows_of(scene, "TRACE", "auto", given)
-            rows += rows_of(scene, "DefGS flow", "same", segment_run(run, k=given["k"], settings=flow))
+            rows += rows_of(scene, "TRACE", "auto", given, **facts)
+            rows += rows_of(
+                scene, "DefGS flow", "same", segment_run(run, k=given["k"], settings=flow), **facts
+            )
             figure(run, args.figures / f"{scene}.png", given["time"], [given["time"]])
-            notes.append(f"{scene} ({trained}): foreground / background only, auto-K {given['k']}.")
             continue
         segment_run(run, time_=1.0, k=k, score=False)  # the future strip of the figure
         auto = segment_run(run, auto_k=True, out=run / "segment-auto")
@@ -108,24 +138,17 @@ def main() -> None:
             settings=SegmentConfig(features="flow", refine_iterations=0),
             out=run / "segment-flow-kmeans",
         )
-        started = time.perf_counter()
         given = segment_run(run, k=k)  # last: the run's stored labels are TRACE's with K given
-        seconds.append(time.perf_counter() - started)
-        rows += rows_of(scene, "TRACE", "given", given)
-        rows += rows_of(scene, "TRACE", "auto", auto)
-        rows += rows_of(scene, "TRACE, K-means alone", "given", kmeans)
-        rows += rows_of(scene, "DefGS flow", "given", baseline)
-        rows += rows_of(scene, "DefGS flow, K-means alone", "given", flow_kmeans)
+        facts = {"trained": trained, "ground truth": ground_truth(given["ground_truth"]["merged"])}
+        rows += rows_of(scene, "TRACE", "given", given, **facts)
+        rows += rows_of(scene, "TRACE", "auto", auto, **facts)
+        rows += rows_of(scene, "TRACE, K-means alone", "given", kmeans, **facts)
+        rows += rows_of(scene, "DefGS flow", "given", baseline, **facts)
+        rows += rows_of(scene, "DefGS flow, K-means alone", "given", flow_kmeans, **facts)
         figure(run, args.figures / f"{scene}.png", given["time"], [given["time"], 1.0])
-        merged = given["ground_truth"]["merged"]
-        notes.append(
-            f"{scene} ({trained}): K = {k}" + (f" ({'; '.join(', '.join(g) for g in merged)} merged)" if merged else "")
-            + f", auto-K {auto['k']}; segment {given['seconds']['segment']:.1f} s, scoring {given['seconds']['score']:.0f} s."
-        )  # fmt: skip
-    columns = ["scene", "method", "K", *(f"{m} {tag}" for tag in ("train", "future") for m in SHOWN)]
-    print("  ".join(columns))
+    print("  ".join(COLUMNS))
     for r in rows:
-        print("  ".join(str(r[c]) for c in columns))
+        print("  ".join(str(r.get(c, "")) for c in COLUMNS))
     if args.json:
         paper = {"scene": "paper: Dynamic Indoor, all 7200 images", "method": "TRACE", "K": "given",
                  **{f"{m} train": PAPER[m] for m in SHOWN}, **{f"{m} future": "" for m in SHOWN}}  # fmt: skip
@@ -136,30 +159,8 @@ def main() -> None:
             + " ".join(str(r) for r in args.runs)
             + f" --json {args.json}",
             title="Motion segmentation (the paper's Table 3 protocol)",
-            columns=columns,
-            notes=(
-                "Runs of `tracegs train` (seed 0) on scenes of `tracegs synth` and, where given, CMU Panoptic "
-                "basketball (`--t-train-end 0.75`); each scene's preset and image size are in its sentence below. "
-                "Every image with a mask is "
-                "scored: on the synthetic scenes train (12 cameras) and val (3 held-out cameras) at t <= 0.763, "
-                "the future all 15 cameras at t > 0.763; each predicted segment against the ground truth's, the "
-                "background one segment in both, no segment ignored (`--ignore-pixels 0`). Features: the paper's "
-                "(|v_bar|, v_bar, |w|, w/|w|) of the rigid motion fitted to f_trd's particle velocities of each "
-                "Gaussian's 24 nearest neighbours (`--settings.twist-neighbours`), K-means, then three rounds in "
-                "which each Gaussian joins the segment whose rigid motion over the span best explains its own "
-                "(docs/SEGMENTATION.md, step 4; started from K-means on the weighted features and on each feature "
-                "group alone, the partition of lowest rigid cost kept; `TRACE, K-means alone`: K-means on the "
-                "weighted features, no refinement). The runs mark static "
-                "Gaussians with a margin of 5 spacings round what moves (`stage2.static_margin`). The DefGS-flow "
-                "baseline clusters the same runs' f_defo displacements over the training span (DefGS's field, "
-                "trained here beside f_trd), refined the same way from its one group (`DefGS flow, K-means alone`: without); with one moving part all find it. Panoptic: its seg/ masks are foreground "
-                "/ background of the training cameras, so only that is scored (not the paper's per-player "
-                "protocol). "
-                + " ".join(notes)
-                + (f" {args.note}" if args.note else "")
-                + " Precision and recall of every row: each run's segment.json."
-                + f" `tracegs segment` with its scoring took {np.mean(seconds):.0f} s per run on average."
-            ),
+            columns=COLUMNS,
+            notes=notes,
         )
         write_record(args.json, record)
 

@@ -21,6 +21,14 @@ from tracegs.run import load_run
 from tracegs.train.trainer import Trainer
 
 
+def record_notes(scene: str, views: int) -> str:
+    """The record's notes: the render the row is trained and scored on (``views`` cameras of ``scene``)."""
+    return (
+        f"Static 3DGS on a {views}-view render of `{scene}` at t = 0, trained on its training cameras and "
+        "scored on the held-out ones (`heldout_views`)."
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--scene", default="fan")
@@ -68,7 +76,8 @@ def main() -> None:
             f"--preset {args.preset} --iterations {args.iterations} --json {args.json}"
         )
         title = "Static reconstruction (stage 1) on a generated scene, held-out views at t = 0"
-        write_record(args.json, make_record("static-quality", [row], command, title=title))
+        notes = record_notes(args.scene, args.views)
+        write_record(args.json, make_record("static-quality", [row], command, title=title, notes=notes))
 
 
 if __name__ == "__main__":

@@ -30,6 +30,9 @@ from tracegs.results import make_record, write_record
 from tracegs.train.threads import ThreadPolicy
 from tracegs.train.trainer import Trainer
 
+DTYPE_ROWS = "training step, the fields' dtype"
+"""The ``what`` of the rows that time the fields in bf16 against float32."""
+
 
 def ssim_ms(fn, size: int, threads: int, repeats: int = 300) -> float:
     torch.set_num_threads(threads)
@@ -95,9 +98,25 @@ def dtype_rows(
         if timed["ms_per_step"] < best.get(dtype, {"ms_per_step": float("inf")})["ms_per_step"]:
             best[dtype] = timed
     return [
-        {"what": "training step, the fields' dtype", "setting": f"{dtype}, {threads} thread(s)", **timed}
+        {"what": DTYPE_ROWS, "setting": f"{dtype}, {threads} thread(s)", **timed}
         for dtype, timed in best.items()
     ]
+
+
+def record_notes(run: Path, rows: list[dict]) -> str:
+    """The record's notes: what the rows time on ``run``, and how the fields' dtype rows were measured
+    where ``rows`` has them."""
+    notes = (
+        f"Steps of the trained run {run} resumed at 3/4 of its steps, ms per step and its parts (fields, "
+        "raster_forward with the loss, backward, optimizer); `speed_vs_alone` is the 1-view step alone over "
+        "the step beside a process spinning on one core."
+    )
+    if any(row.get("what") == DTYPE_ROWS for row in rows):
+        notes += (
+            " The fields' dtype rows put bf16 autocast against float32 (the fused MLPs where they apply) in "
+            "alternate blocks of one process, each its fastest."
+        )
+    return notes
 
 
 def main() -> None:
@@ -160,13 +179,7 @@ def main() -> None:
             rows,
             f"python benchmarks/training_speed.py --run {args.run}",
             title="Where a training step's time goes: SSIM, views per step, the fields' dtype, a busy core",
-            notes=(
-                f"Steps of the trained run {args.run} resumed at 3/4 of its steps; ms per step and its "
-                "parts (fields, raster_forward incl. the loss, backward, optimizer). `speed_vs_alone`: "
-                "the 1-view step alone over the step beside a busy core (another process spinning). The fields' "
-                "dtype rows: bf16 autocast against float32 (the fused MLPs where they apply), alternate blocks "
-                "of one process, each its fastest."
-            ),
+            notes=record_notes(args.run, rows),
         )
         write_record(args.json, record)
 

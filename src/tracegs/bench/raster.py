@@ -225,19 +225,27 @@ def _write(records: list[dict], json_path: str | Path, device: torch.device, isa
     title = f"Rasteriser forward / forward + backward ({device.type})"
     columns = ["backend", "image", "gaussians", "ms_forward", "ms_forward_backward", *extra, "peak_mb"]
     columns += ["speed-up fwd", "speed-up fwd+bwd", "threads"]
-    notes = (
-        "Random scenes of render/random_scene.py (RGB colours), one camera. Median of the repeats after one "
-        "warm-up (the reference: fewer when slow); speed-up: the reference's time over the backend's at the "
-        "same workload; peak_mb: the resident memory one forward + backward adds."
-    )
-    if isas != ("native",):
-        notes += (
-            f" Instruction sets {', '.join(isas)}, each in a process of its own; the first gives the rows. "
-            "avx2: held to an AVX2-only CPU's code paths (ATen, oneDNN and MKL limited to AVX2, the extensions "
-            "built for x86-64-v3), the native rasteriser only."
-        )
+    notes = record_notes(isas)
     record = make_record(f"raster-{device.type}", rows, command, title=title, columns=columns, notes=notes)
     write_record(json_path, record)
+
+
+def record_notes(isas: tuple[str, ...] = ("native",)) -> str:
+    """The record's notes: how the rows are measured, and which instruction sets ``isas`` (each in a
+    process of its own) give the rows (the first) and the columns beside them (the others)."""
+    notes = (
+        "Random scenes of render/random_scene.py, one camera, median of the repeats after a warm-up; "
+        "peak_mb is the memory one forward + backward adds."
+    )
+    if tuple(isas) == ("native",):
+        return notes
+    held = {"native": "on this CPU's own code paths", "avx2": "held to an AVX2-only CPU's code paths"}
+    how = [held.get(isa, f"held to {isa}") for isa in isas]
+    notes += f" The rows run {how[0]}"
+    notes += "".join(
+        f"; the {isa} columns run the native rasteriser {h}" for isa, h in zip(isas[1:], how[1:], strict=True)
+    )
+    return notes + "."
 
 
 def _with_speedups(records: list[dict]) -> list[dict]:
