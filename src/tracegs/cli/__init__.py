@@ -14,7 +14,6 @@ import json
 import sys
 import traceback
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -27,9 +26,11 @@ from .commands import (
     Demo,
     Eval,
     Export,
+    Masks,
     Metrics,
     Render,
     Results,
+    ResumeDevice,
     Segment,
     Synth,
     Train,
@@ -100,7 +101,7 @@ def _train_request(argv: list[str]) -> tuple[TrainConfig, Train]:
                 f"--resume takes no other training flag (got {given[0]}): the run continues with its own "
                 f"{flags.resume / CONFIG}; only --device may change"
             )
-        device = tyro.cli(_DeviceChoice, args=rest, prog="tracegs train").device
+        device = tyro.cli(ResumeDevice, args=rest, prog="tracegs train").device
         cfg = load_config(flags.resume / CONFIG)
         cfg.run = flags.resume
         if device is not None:
@@ -120,13 +121,6 @@ def _train_request(argv: list[str]) -> tuple[TrainConfig, Train]:
     cfg.data, cfg.run = Path(cfg.data).absolute(), Path(cfg.run).absolute()
     check_device(cfg.device)
     return validate(cfg), flags
-
-
-@dataclass
-class _DeviceChoice:
-    """The one flag `tracegs train --resume RUN` takes besides it."""
-
-    device: str | None = None
 
 
 def run_train(argv: list[str]) -> dict:
@@ -242,6 +236,13 @@ def _segment(a: Segment) -> None:
     print(format_report(report))
 
 
+def _masks(a: Masks) -> None:
+    from ..data.motion_masks import format_report, write_motion_masks
+
+    report = write_motion_masks(a.data, a.split, a.out, a.downscale, a.settings, a.figure, a.figure_frames)
+    _dump(report, a.json, format_report(report))
+
+
 def _metrics(a: Metrics) -> None:
     from ..eval.metrics import compare_images
 
@@ -278,6 +279,7 @@ COMMANDS: dict[str, tuple[type, Callable]] = {
     "export": (Export, _export),
     "view": (View, _view),
     "segment": (Segment, _segment),
+    "masks": (Masks, _masks),
     "metrics": (Metrics, _metrics),
     "bench": (Bench, _bench),
     "build": (Build, _build),

@@ -10,6 +10,7 @@ from typing import Literal
 
 import tyro
 
+from ..data.motion_masks import MotionMaskSettings
 from ..segment.config import SegmentConfig
 
 PresetName = Literal["paper", "cpu-fast", "capture", "tiny"]
@@ -81,6 +82,13 @@ class Train:
     """--continual: --window, --horizon and --step count frames."""
     fraction: float = 0.25
     """--continual: fraction of the stage-2 steps each round after the first trains (warm start)."""
+
+
+@dataclass
+class ResumeDevice:
+    """The one flag `tracegs train --resume RUN` takes besides it."""
+
+    device: str | None = None
 
 
 @dataclass
@@ -239,6 +247,31 @@ class Segment:
     settings: SegmentConfig = field(default_factory=SegmentConfig)
     device: str = "auto"
     """auto, cpu or cuda."""
+
+
+@dataclass
+class Masks:
+    """Derive motion masks of a static rig's cameras from the capture: what differs from each camera's
+    background plate (its frames' per-pixel median) moves.
+
+    One PNG per frame under --out, the images' layout (255 = moves); --figure draws each camera's plate
+    and masks. A capture whose cameras move has no plate, and is told so."""
+
+    data: Path
+    """Scene folder (Blender or Panoptic layout) whose cameras stand still."""
+    out: Path
+    """Folder of the masks: OUT/<the image's path under the scene folder, ims/ for Panoptic>.png."""
+    split: str = "test"
+    """The split whose frames are masked (each camera's plate is the median of its frames there)."""
+    downscale: int = 1
+    """Divide the image size by this integer factor (as `tracegs train --downscale`)."""
+    figure: Path | None = None
+    """Also write a PNG: per camera, a frame's image, the plate, and chosen frames with their masks."""
+    figure_frames: tuple[int, ...] = ()
+    """Indices of the frames the figure shows in each camera's frames (default: 1/4, 1/2, 3/4 through)."""
+    json: Path | None = None
+    """Also write the report (per camera: frames, share of moving pixels) here."""
+    settings: MotionMaskSettings = field(default_factory=MotionMaskSettings)
 
 
 @dataclass
