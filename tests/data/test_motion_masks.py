@@ -18,6 +18,7 @@ from tracegs.data.motion_masks import (
     background_plate,
     mask_path,
     moving_pixels,
+    read_motion_mask,
     write_motion_masks,
 )
 
@@ -140,6 +141,8 @@ def test_the_masks_command_writes_one_png_per_frame(scene, tmp_path, capsys):
         assert path.relative_to(out).as_posix() == f"test/{f.image_path.stem}.png"
         assert np.array_equal(iio.imread(path) == 255, masks.mask(f))
     assert len(list(out.rglob("*.png"))) == 2 * FRAMES and not list(out.rglob("*.tmp"))
+    frame = masks.scene.frames[3]
+    assert np.array_equal(read_motion_mask(out / mask_path(scene, frame), frame), masks.mask(frame))
     assert iio.imread(figure).shape == (2 * SIZE + 2, 5 * SIZE + 8, 3)
 
 
@@ -147,3 +150,27 @@ def test_the_report_says_which_cameras_have_no_plate(scene, tmp_path):
     settings = MotionMaskSettings(min_frames=FRAMES + 1)
     report = write_motion_masks(scene, "test", tmp_path / "none", settings=settings)
     assert report["written"] == 0 and all(c["plate"] is None for c in report["cameras"])
+
+
+def test_a_mask_file_of_another_size_is_an_error_naming_it(scene, tmp_path):
+    frame = MotionMasks.of_split(scene, "test").scene.frames[0]
+    wrong = tmp_path / "wrong.png"
+    iio.imwrite(wrong, np.zeros((SIZE, SIZE + 5), np.uint8))
+    with pytest.raises(
+        DatasetError, match=f"{wrong}: mask of {SIZE + 5}x{SIZE} for an image of {SIZE}x{SIZE}"
+    ):
+        read_motion_mask(wrong, frame)
+    with pytest.raises(DatasetError, match="missing.png: no motion mask"):
+        read_motion_mask(tmp_path / "missing.png", frame)
+
+
+def test_the_command_says_in_one_line_that_the_cameras_move(tmp_path, capsys):
+    from tracegs.cli import main
+
+    scene = write_disc_scene(tmp_path / "turning", moving_camera=True)
+    with pytest.raises(SystemExit) as e:
+        main(["masks", "--data", str(scene), "--out", str(tmp_path / "masks")])
+    err = capsys.readouterr().err.strip()
+    assert e.value.code == 1 and len(err.splitlines()) == 1
+    assert err.startswith("tracegs masks: error: ") and "camera 1 moves" in err
+    assert not (tmp_path / "masks").exists()

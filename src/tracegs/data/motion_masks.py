@@ -193,6 +193,18 @@ def mask_path(root: Path, frame: Frame) -> Path:
     return Path(frame.name).with_suffix(".png")
 
 
+def read_motion_mask(path: Path, frame: Frame) -> np.ndarray:
+    """[H, W] bool at ``frame``'s size: the mask file ``path`` that ``write_motion_masks`` wrote
+    (non-zero = moves; one of an integer multiple of the size is sampled down); a ``DatasetError``
+    naming the file when it is missing, unreadable or of another size."""
+    from .frames import DatasetError
+    from .masks import read_id_mask
+
+    if not Path(path).is_file():
+        raise DatasetError(f"{path}: no motion mask for the frame {frame.name}")
+    return read_id_mask(Path(path), frame.height, frame.width) > 0
+
+
 def write_motion_masks(
     data: Path,
     split: str,
