@@ -54,9 +54,10 @@ class MotionMaskSettings:
     """The rule by which a pixel moves (the module docstring); pixel counts at the masks' size."""
 
     threshold: float = 0.08
-    """A pixel moves where the largest channel of |image - plate| (blurred) exceeds this, in [0, 1]."""
+    """A pixel moves where the largest channel of |image - plate| exceeds this (in [0, 1]), both as it
+    is and blurred."""
     blur: float = 1.0
-    """Sigma in pixels of the Gaussian blur of the image and the plate before they are compared."""
+    """Sigma in pixels of the Gaussian blur of image - plate, which noise does not pass (0: no blur)."""
     min_area: int = 20
     """Connected moving regions of fewer pixels than this are noise, not motion."""
     dilate: int = 3
