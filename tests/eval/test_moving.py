@@ -301,3 +301,15 @@ def test_cli_eval_scores_a_motion_and_the_moving_lpips(trained_run, tmp_path, ca
     assert result["interpolation"]["frames"] == trace["interpolation"]["frames"]
     with pytest.raises(ValueError, match="motion 'physics'"):
         evaluate_run(trained_run[1], scene, with_lpips=False, save_images=False, motion="physics")
+
+
+def test_cli_eval_on_a_mask_of_another_size_is_one_line_naming_it(trained_run, tmp_path, capsys):
+    scene = _with_parts(trained_run, tmp_path)
+    bad = sorted((scene / "gt" / "masks" / "test").iterdir())[0]
+    iio.imwrite(bad, np.zeros((16, 32), np.uint8))
+    path = tmp_path / "e.json"
+    with pytest.raises(SystemExit) as exit_:
+        main(["eval", "--run", str(trained_run[1]), "--data", str(scene), "--json", str(path), "--no-lpips"])
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 1 and len(err.splitlines()) == 1 and str(bad) in err and "Traceback" not in err
+    assert not path.exists()

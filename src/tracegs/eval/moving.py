@@ -9,8 +9,8 @@ has one for it:
    not ``static``;
 2. ``foreground``: the capture's own foreground mask of the frame (``data/masks.py``: Panoptic's
    ``seg/``, a Blender-layout scene's ``masks/``);
-3. ``derived``: the motion mask derived from the capture itself (``data/motion_masks.py``: what differs
-   from a static camera's background plate, its per-pixel temporal median).
+3. ``derived``: the motion mask derived from the capture itself (``tracegs.data.motion_masks``: what
+   differs from a static camera's background plate, its per-pixel temporal median).
 
 Every mask is dilated by ``MOVING_DILATION`` pixels. A frame that no source gives a mask is left out
 of the moving-region numbers and counted (the result's notes say so); it is never scored as if all
@@ -77,7 +77,7 @@ def moving_part_ids(motion_json: Path) -> set[int]:
 
 def derived_masks(data: Path, split: str, downscale: int = 1):
     """The motion masks derived from the images of the scene's ``split`` (``MotionMasks``, whose
-    ``mask(frame)`` is an [H, W] bool or None), or None where that tool is not installed. Raises
+    ``mask(frame)`` is an [H, W] bool or None), or None where that module is not there. Raises
     ``DatasetError`` when the split's cameras move (no background plate to compare with)."""
     try:
         from ..data.motion_masks import MotionMasks
