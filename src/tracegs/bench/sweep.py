@@ -4,9 +4,9 @@ tasks (``cluster``): each cell trains its run folder if needed, scores it and gi
 A row that differs from TRACE only after training copies the scene's TRACE training
 (``Cell.after_training_only``), so it runs once that cell has finished; a second row with the same
 run folder waits for the first (``dependencies``), as the Hold row does: it scores the TRACE run with
-another motion (``Cell.motion``) and trains nothing of its own. In order, such a row runs right after the cell it
-waits for; on Ray it is a task that receives that cell's result. Ray is imported only on the Ray
-path (``pip install -e ".[cluster]"``).
+another motion (``Cell.motion``) and trains nothing of its own. In order, such a row runs right after
+the cell it waits for; on Ray it is a task that receives that cell's result. Ray is imported only on
+the Ray path (``pip install -e ".[cluster]"``).
 """
 
 from __future__ import annotations

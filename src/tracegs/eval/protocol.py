@@ -123,9 +123,9 @@ def evaluate_run(
 ) -> dict:
     """Render both splits of a trained run and score them (schema in docs/EVALUATION.md), the whole
     images and the pixels that move (``moving.py``: each frame's moving mask, dilated by
-    ``moving_dilation`` pixels, default ``MOVING_DILATION``); with ``future_end``, the extrapolation split is the validation future
-    (``split_frames``). ``motion``: how the run moves its Gaussians (``Predictor.gaussians_at``:
-    ``trace``, ``f_defo`` or ``hold``), recorded in the result.
+    ``moving_dilation`` pixels, default ``MOVING_DILATION``); with ``future_end``, the extrapolation
+    split is the validation future (``split_frames``). ``motion``: how the run moves its Gaussians
+    (``Predictor.gaussians_at``: ``trace``, ``f_defo`` or ``hold``), recorded in the result.
     ``render_settings``: ``extrapolation`` settings that change rendering without a new calibration,
     by dotted name as in ``config.apply_overrides`` (e.g. ``{"extrapolation.free_bodies": False}``).
     ``out``: the folder of the rendered images (``OUT/<split>/<frame>.png``; default ``RUN/eval``).
