@@ -1,10 +1,12 @@
-"""A real multi-view capture: CMU Panoptic `basketball` with the `capture` preset, TRACE and DefGS.
+"""A real multi-view capture: CMU Panoptic `basketball` with the `capture` preset, TRACE, DefGS and Hold.
 
 For each run (trained with `tracegs train --preset capture --downscale 2 --t-train-end 0.75`, the
 method in its config): the 4 test cameras over the training span, the test cameras over the next 10
-frames, and all cameras over the whole future, through `tracegs eval`'s protocol (`evaluate_run`);
-a figure of the test cameras at one training time (render over ground truth) per run in
-docs/figures/panoptic/; with --json, the record.
+frames, and all cameras over the whole future, through `tracegs eval`'s protocol (`evaluate_run`),
+on whole images and on the pixels that move (`moving_psnr`, the moving-region MAE-PSNR; "-" where
+no frame had a moving mask); a figure of the test cameras at one training time (render over ground
+truth) per run in docs/figures/panoptic/; with --json, the record. Hold trains nothing: it is the
+first TRACE run scored with the motion `hold` (its Gaussians at the training span's end held still).
 
 Usage: .venv/bin/python benchmarks/panoptic.py TRACE_RUN DEFGS_RUN [RUN=LABEL ...] [--json docs/results/panoptic.json]
 """
@@ -26,7 +28,18 @@ from tracegs.results import make_record, sentences, write_record
 from tracegs.run import load_run
 
 NEXT = 10  # frames of the short future scored on the test cameras
-COLUMNS = ["method", "split", "frames", "psnr", "mae_psnr", "ssim", "train s", "steps", "gaussians"]
+COLUMNS = [
+    "method",
+    "split",
+    "frames",
+    "psnr",
+    "mae_psnr",
+    "moving_psnr",
+    "ssim",
+    "train s",
+    "steps",
+    "gaussians",
+]
 NOTES = (
     "27 training and 4 test cameras x 150 frames, trained on frames 0-111 with no point cloud: the "
     "Gaussians start on the visual hull of the first frame's masks and on the surroundings the cameras see."
@@ -41,16 +54,17 @@ def record_notes(note: str = "") -> str:
     return f"{NOTES} {note}".strip()
 
 
-def scores(run: Path, label: str | None = None) -> tuple[list[dict], dict]:
-    """The rows of one run (``label``: its method's name, else TRACE or DefGS) and its summary facts;
-    the evaluations are kept in RUN/panoptic_eval.json while the checkpoint is older."""
-    cache = run / "panoptic_eval.json"
+def scores(run: Path, label: str | None = None, motion: str = "trace") -> tuple[list[dict], dict]:
+    """The rows of one run scored with ``motion`` (``label``: its method's name, else TRACE, DefGS or,
+    with the motion ``hold``, Hold) and its summary facts; the evaluations are kept in
+    RUN/panoptic_eval.json (``panoptic_eval_hold.json``) while the checkpoint is older."""
+    cache = run / ("panoptic_eval.json" if motion == "trace" else f"panoptic_eval_{motion}.json")
     if cache.is_file() and cache.stat().st_mtime > (run / "checkpoint.pt").stat().st_mtime:
         full, soon = json.loads(cache.read_text())
     else:
-        full, soon = _evaluations(run)
+        full, soon = _evaluations(run, motion)
         cache.write_text(json.dumps([full, soon]))
-    method = label or ("TRACE" if full["method"] == "trace" else "DefGS")
+    method = label or ("Hold" if motion == "hold" else "TRACE" if full["method"] == "trace" else "DefGS")
     new = "new_cameras"
     interp = full["interpolation"]
     rows = [
@@ -72,6 +86,7 @@ def scores(run: Path, label: str | None = None) -> tuple[list[dict], dict]:
         },  # fmt: skip
     ]
     facts = {
+        "method": full["method"],
         "train_seconds": full["train_seconds"],
         "gaussians": full["gaussians"],
         "iterations": full["iterations"],
@@ -79,21 +94,42 @@ def scores(run: Path, label: str | None = None) -> tuple[list[dict], dict]:
     return rows, facts
 
 
-def _evaluations(run: Path) -> tuple[dict, dict]:
-    """`evaluate_run` over the whole protocol, and over the next ``NEXT`` frames only."""
-    full = evaluate_run(run, with_lpips=False, save_images=False)
+def _evaluations(run: Path, motion: str = "trace") -> tuple[dict, dict]:
+    """`evaluate_run` with ``motion`` over the whole protocol, and over the next ``NEXT`` frames only."""
+    full = evaluate_run(run, with_lpips=False, save_images=False, motion=motion)
     train = load_scene(full["scene"], "train")
     dt = frame_interval([f.time for f in train.frames], train.fps)
     last = max(f.time for f in train.frames if f.time <= full["t_train_end"] + 1e-9)
-    return full, evaluate_run(run, with_lpips=False, save_images=False, horizon_end=last + NEXT * dt)
+    soon = evaluate_run(run, with_lpips=False, save_images=False, horizon_end=last + NEXT * dt, motion=motion)
+    return full, soon
 
 
 def _cells(s: dict) -> dict:
+    moving = s.get("moving", {}).get("mae_psnr")
     return {
         "frames": s["frames"],
         "psnr": round(s["psnr"], 2),
         "mae_psnr": round(s["mae_psnr"], 2),
+        "moving_psnr": "-" if moving is None else round(moving, 2),
         "ssim": round(s["ssim"], 3),
+    }
+
+
+def hold_rows(runs: list[tuple[Path, dict]]) -> list[dict]:
+    """The Hold rows: the first TRACE run of ``runs`` ((run, its facts) pairs) scored with the motion
+    ``hold``, with that run's facts (no training of its own); none without a TRACE run."""
+    trace = next((run for run, facts in runs if facts["method"] == "trace"), None)
+    if trace is None:
+        return []
+    rows, facts = scores(trace, motion="hold")
+    return [{**row, **_run_facts(facts)} for row in rows]
+
+
+def _run_facts(facts: dict) -> dict:
+    return {
+        "train s": round(facts["train_seconds"]),
+        "steps": facts["iterations"],
+        "gaussians": facts["gaussians"],
     }
 
 
@@ -127,20 +163,17 @@ def main() -> None:
         notes = record_notes(args.note)
     except ValueError as err:
         ap.error(str(err))
-    rows = []
+    rows, runs = [], []
     for spec in args.runs:
         path, _, label = spec.partition("=")
         run = Path(path)
         r, facts = scores(run, label or None)
-        run_facts = {
-            "train s": round(facts["train_seconds"]),
-            "steps": facts["iterations"],
-            "gaussians": facts["gaussians"],
-        }
-        rows += [{**row, **run_facts} for row in r]
+        rows += [{**row, **_run_facts(facts)} for row in r]
+        runs.append((run, facts))
         name = r[0]["method"]
         if not label:
             figure(run, args.figures / f"{name.lower()}_test_cameras.png", 56 / 149)
+    rows += hold_rows(runs)
     for row in rows:
         print("  ".join(str(row[c]) for c in COLUMNS))
     if args.json:

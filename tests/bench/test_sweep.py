@@ -90,3 +90,67 @@ def test_a_missing_ray_is_one_clear_line(tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err
     assert RAY_MISSING in err and "Traceback" not in err
     assert not (tmp_path / "bench" / "runs").exists()  # nothing trained
+
+
+def test_the_hold_row_is_the_trace_run_scored_with_another_motion(tmp_path, monkeypatch):
+    import tracegs.bench.variants as variants
+
+    assert "Hold" in METHODS and variants.MOTIONS == {"Hold": "hold"}
+    cells = []
+    monkeypatch.setattr(variants, "run_cells", lambda c, *a: cells.extend(c) or [])
+    scene = str(write_tiny_scene(tmp_path / "scene", size=32))
+    table = {k: METHODS[k] for k in ("Hold", "TRACE", "DefGS")}  # Hold listed first on purpose
+    run_variant_table("methods", table, tmp_path / "bench", (scene,), "tiny")
+    hold, trace, defgs = cells
+    assert (hold.label, hold.motion, trace.motion, defgs.motion) == ("Hold", "hold", "trace", "trace")
+    assert hold.run == trace.run and hold.cfg == trace.cfg  # TRACE's run folder and settings
+    assert dependencies(cells) == {0: 1}  # it waits for the TRACE cell, which trains that folder
+    assert schedule(cells) == [1, 0, 2]
+
+
+def _finished_run(run: Path, psnr: float) -> None:
+    import json
+
+    run.mkdir(parents=True)
+    split = {"mae_psnr": psnr, "ssim": 0.9, "frames": 2}
+    (run / "eval.json").write_text(json.dumps({"interpolation": split, "extrapolation": split}))
+    facts = {"train_seconds": 5.0, "iterations": 10, "gaussians": 100, "ms_per_iteration": {}}
+    (run / "summary.json").write_text(json.dumps(facts))
+
+
+def test_the_hold_row_scores_a_finished_trace_run_and_never_trains(tmp_path, monkeypatch, capsys):
+    import json
+
+    import tracegs.bench.sweep as sweep
+    import tracegs.eval.protocol as protocol
+    from tracegs.bench.sweep import run_cell
+    from tracegs.train.trainer import Trainer
+
+    def no_training(self):
+        raise AssertionError("the Hold row must not train")
+
+    scored = []
+
+    def evaluate(run, **kwargs):
+        scored.append(kwargs)
+        split = {"mae_psnr": 20.0, "ssim": 0.8, "frames": 2, "moving": {"mae_psnr": 15.0}}
+        return {"interpolation": split, "extrapolation": split, "motion": kwargs["motion"]}
+
+    monkeypatch.setattr(Trainer, "train", no_training)
+    monkeypatch.setattr(protocol, "evaluate_run", evaluate)
+    monkeypatch.setattr(
+        sweep, "_changed_settings", lambda run, cfg: [] if (run / "eval.json").is_file() else None
+    )
+    run = tmp_path / "runs" / "scene_TRACE_tiny"
+    hold = Cell("scene", "Hold", run, None, run, motion="hold")
+    assert run_cell(hold) is None and scored == []  # no TRACE run yet: skipped, nothing trained
+    assert "to score with the motion 'hold'" in capsys.readouterr().out
+    _finished_run(run, psnr=25.0)
+    report_only = Cell("scene", "Hold", run, None, run, motion="hold", train=False)
+    assert run_cell(report_only) is None and scored == []  # report-only scores nothing
+    row = run_cell(hold)
+    assert scored == [{"future_end": None, "out": run / "eval_hold", "motion": "hold"}]
+    assert row["variant"] == "Hold" and row["extrap_psnr"] == 20.0 and row["extrap_moving_psnr"] == 15.0
+    assert json.loads((run / "eval_hold.json").read_text())["motion"] == "hold"
+    assert run_cell(hold)["extrap_psnr"] == 20.0 and len(scored) == 1  # kept while the run is unchanged
+    assert run_cell(Cell("scene", "TRACE", run, None, run))["extrap_psnr"] == 25.0  # the TRACE row's own

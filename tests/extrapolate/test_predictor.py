@@ -10,6 +10,7 @@ from tests.conftest import randomised_model
 from tracegs.config import make_config
 from tracegs.data.cameras import Camera, look_at_viewmat
 from tracegs.extrapolate import MAX_TIME_FACTOR, ExtrapolationState, Predictor, check_time
+from tracegs.extrapolate.predictor import MOTIONS
 
 T_MAX = 0.5
 
@@ -42,6 +43,21 @@ def test_up_to_the_handover_it_is_f_defo_and_after_it_the_integrated_physics():
         )
     with pytest.raises(ValueError, match="motion 'physics'"):
         predictor.gaussians_at(1.0, "physics")
+
+
+def test_hold_is_f_defo_up_to_the_span_end_and_its_state_there_afterwards():
+    predictor = _predictor()
+    model = predictor.model
+    with torch.no_grad():
+        for t in (0.0, 0.3 * T_MAX, predictor.handover_time(), T_MAX):  # before t_max: f_defo
+            held, deformed = predictor.gaussians_at(t, "hold"), model.deform(t)
+            assert all(torch.equal(held[k], deformed[k]) for k in ("means", "quats", "scales"))
+        last = model.deform(T_MAX)
+        for t in (T_MAX + 1e-3, T_MAX + 0.3, 4 * T_MAX):  # after it: f_defo's Gaussians at t_max, still
+            held = predictor.gaussians_at(t, "hold")
+            assert all(torch.equal(held[k], last[k]) for k in ("means", "quats", "scales"))
+        assert (model.deform(T_MAX + 0.3)["means"] - last["means"]).abs().max() > 1e-4  # f_defo moves on
+    assert "hold" in MOTIONS
 
 
 def test_a_render_is_the_models_render_of_the_gaussians_at_that_time_in_its_colours():

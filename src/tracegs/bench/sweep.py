@@ -3,9 +3,10 @@ tasks (``cluster``): each cell trains its run folder if needed, scores it and gi
 
 A row that differs from TRACE only after training copies the scene's TRACE training
 (``Cell.after_training_only``), so it runs once that cell has finished; a second row with the same
-run folder waits for the first (``dependencies``). In order, such a row runs right after the cell it
-waits for; on Ray it is a task that receives that cell's result. Ray is imported only on the Ray
-path (``pip install -e ".[cluster]"``).
+run folder waits for the first (``dependencies``), as the Hold row does: it scores the TRACE run with
+another motion (``Cell.motion``) and trains nothing of its own. In order, such a row runs right after
+the cell it waits for; on Ray it is a task that receives that cell's result. Ray is imported only on
+the Ray path (``pip install -e ".[cluster]"``).
 """
 
 from __future__ import annotations
@@ -49,13 +50,19 @@ class Cell:
     validation: bool = False
     train: bool = True
     """False: report only (a row without a finished run with these settings is skipped)."""
+    motion: str = "trace"
+    """How the run's Gaussians move when it is scored (``Predictor.gaussians_at``); another motion
+    than ``trace`` scores the run of ``run`` into ``RUN/eval_<motion>.json``."""
 
 
 def dependencies(cells: list[Cell]) -> dict[int, int]:
     """Cell index -> the index of the cell that must finish first: an after-training-only row waits
     for its scene's TRACE cell (when that is part of the sweep), a row for the first one with its run
-    folder."""
+    folder that trains it (scores it with the motion ``trace``; a row of another motion trains nothing)."""
     first: dict[Path, int] = {}
+    for i, cell in enumerate(cells):
+        if cell.motion == "trace":
+            first.setdefault(cell.run, i)
     for i, cell in enumerate(cells):
         first.setdefault(cell.run, i)
     waits = {}
@@ -98,16 +105,18 @@ def run_cells(cells: list[Cell], cluster: str | None = None, cpus_per_task: int 
 
 def run_cell(cell: Cell) -> dict | None:
     """Train ``cell``'s run if it has no finished run with its settings, score it, and give its row;
-    None when report-only finds nothing to report."""
+    None when report-only, or a row of another motion than ``trace``, finds nothing to report."""
     from ..eval.protocol import evaluate_run
     from ..train.trainer import Trainer
 
     run, cfg = cell.run, cell.cfg
     done, changed = run / "eval.json", _changed_settings(run, cfg)
     same = changed == []
-    if not (done.is_file() and same) and not cell.train:
+    if not (done.is_file() and same) and (not cell.train or cell.motion != "trace"):
         why = "no finished run with these settings"
-        if done.is_file() and changed is not None and not training_changes(changed):
+        if cell.motion != "trace":  # Hold trains nothing: its run is the TRACE row's
+            why += f" to score with the motion {cell.motion!r} (the TRACE row makes it)"
+        elif done.is_file() and changed is not None and not training_changes(changed):
             why = (
                 f"scored with other render-time settings ({', '.join(changed)}); "
                 "run without --report-only to score it again"
@@ -126,7 +135,9 @@ def run_cell(cell: Cell) -> dict | None:
         atomic_write_text(done, json.dumps(result, indent=2))
     else:
         summary = json.loads((run / "summary.json").read_text())
-    result = json.loads(done.read_text())
+    result = json.loads(done.read_text()) if cell.motion == "trace" else _scored_with_motion(cell, done)
+    if result is None:
+        return None
     return {
         "scene": cell.scene,
         "variant": cell.label,
@@ -136,6 +147,23 @@ def run_cell(cell: Cell) -> dict | None:
         "gaussians": summary["gaussians"],
         "ms_per_it": summary["ms_per_iteration"],
     }
+
+
+def _scored_with_motion(cell: Cell, done: Path) -> dict | None:
+    """``cell.run`` scored with ``cell.motion``, kept in ``RUN/eval_<motion>.json`` while that file is
+    not older than the run's own ``eval.json`` (``done``: the same training and settings); report-only
+    (``cell.train`` off) scores nothing and gives None when it is missing."""
+    from ..eval.protocol import evaluate_run
+
+    path = cell.run / f"eval_{cell.motion}.json"
+    if not (path.is_file() and path.stat().st_mtime >= done.stat().st_mtime):
+        if not cell.train:
+            print(f"{cell.run}: not scored with the motion {cell.motion!r} yet; row skipped")
+            return None
+        out = cell.run / f"eval_{cell.motion}"
+        result = evaluate_run(cell.run, future_end=cell.future_end, out=out, motion=cell.motion)
+        atomic_write_text(path, json.dumps(result, indent=2))
+    return json.loads(path.read_text())
 
 
 def _scores(result: dict, cell: Cell) -> dict:
@@ -149,6 +177,7 @@ def _scores(result: dict, cell: Cell) -> dict:
             "extrap_ssim": e["ssim"],
             "extrap_lpips": e.get("lpips_vgg", float("nan")),
             "extrap_psnr_new_cams": e.get("per_cameras", {}).get("new_cameras", {}).get("mae_psnr", "-"),
+            "extrap_moving_psnr": e.get("moving", {}).get("mae_psnr", "-"),
             "paper_extrap": cell.paper,
         }
     return {

@@ -1,4 +1,4 @@
-"""Quality benchmarks: TRACE, TRACE_4dgs and DefGS (``methods``) and the paper's Table 4 switches
+"""Quality benchmarks: TRACE, TRACE_4dgs, DefGS and Hold (``methods``) and the paper's Table 4 switches
 (``ablations``) trained and scored on synthetic scenes or scene folders, one row per (scene, variant).
 
 Quality comes from the held-out splits (or, with ``validation``, a future cut from the training span
@@ -34,9 +34,16 @@ METHODS = {
     "TRACE": {"method": "trace"},
     "TRACE_4dgs": {"method": "trace", "deformation.kind": "hexplane"},
     "DefGS": {"method": "defgs"},
+    "Hold": {"method": "trace"},
     "TRACE joint laws": {"method": "trace", "extrapolation.joint_laws": True},
     "TRACE paper extrapolation": {"method": "trace", "extrapolation.joint_laws": False},
 }
+
+MOTIONS = {"Hold": "hold"}
+"""Rows that score another row's trained run with another motion (``Predictor.gaussians_at``) and
+train nothing: Hold is the TRACE row's run (its folder: its settings are TRACE's) with f_defo up to
+the training span's end and its Gaussians there held still after it (the baseline a prediction must
+beat), scored into ``RUN/eval_hold.json``; without a finished TRACE run the row is skipped."""
 
 ABLATIONS = {
     "dt=1": {"stage2.dt_frames": 1.0},
@@ -152,7 +159,8 @@ def run_variant_table(
     (default: the ``tracegs bench`` line that makes them). With ``validation`` (a fraction of the
     training span) every run trains up to that cut and is scored on the training cameras' later
     frames (``validation_cut``): the table for choosing settings, which never sees the test splits.
-    Rows with the same settings share one run folder (the ablation "dt=2" is the TRACE row). With
+    Rows with the same settings share one run folder (the ablation "dt=2" is the TRACE row, and Hold
+    is the TRACE row's run scored with another motion, ``MOTIONS``). With
     ``json_path`` the rows are written there as a results record (``tracegs.results``).
 
     The rows train one after the other in this process; with ``cluster`` (``"auto"``: a local Ray on
@@ -187,6 +195,7 @@ def run_variant_table(
                     future_end=future_end,
                     validation=validation is not None,
                     train=train,
+                    motion=MOTIONS.get(label, "trace"),
                 )
             )
     records = run_cells(cells, cluster, cpus_per_task)

@@ -190,7 +190,10 @@ def _eval(a: Eval) -> None:
     from ..eval.protocol import evaluate_run
     from ..eval.report import format_summary
 
-    result = evaluate_run(a.run, a.data, a.half_res, a.lpips, a.save_images, a.device, out=a.out)
+    result = evaluate_run(
+        a.run, a.data, a.half_res, a.lpips, a.save_images, a.device, out=a.out, motion=a.motion,
+        moving_dilation=a.moving_dilation,
+    )  # fmt: skip
     console = format_summary(result)
     if a.until is not None:  # the new cameras past the data (``eval/horizon.py``)
         from ..eval.horizon import long_horizon

@@ -165,6 +165,11 @@ class Eval:
     until: float | None = None
     """Also render the new cameras' future up to this time, past the data (e.g. 1.5: twice a 0.75
     training span), scored per time while there are images; the output says where nothing was checked."""
+    motion: Literal["trace", "f_defo", "hold"] = "trace"
+    """How the run moves its Gaussians: trace (the learned physics past the handover), f_defo (the
+    deformation field past its span, as DefGS) or hold (f_defo's Gaussians at the span's end held still)."""
+    moving_dilation: int | None = None
+    """Pixels by which the masks of the moving pixels grow (default 3, eval/moving.py)."""
     device: str = "auto"
     """auto, cpu or cuda."""
 

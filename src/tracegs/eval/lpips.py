@@ -37,6 +37,7 @@ __all__ = [
     "expected_shapes",
     "load_lpips_checkpoint",
     "lpips",
+    "lpips_map",
     "lpips_weights_path",
     "min_image_size",
 ]
@@ -299,6 +300,27 @@ class LPIPS(nn.Module):
 
     def forward(self, img: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
         """img, ref [..., H, W, 3] in [0, 1] (broadcast against each other) -> distance [...]."""
+        layers, batch = self._layer_distances(img, ref)
+        dist = layers[0].new_zeros(layers[0].shape[0])
+        for layer in layers:
+            dist = dist + layer.mean(dim=(1, 2, 3))
+        return dist.reshape(batch)
+
+    def spatial(self, img: torch.Tensor, ref: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(distance [...] as ``forward``, its map [..., H, W]): each layer's distances upsampled to the
+        image's size (bilinear) and summed over the layers, as the official ``lpips.LPIPS(spatial=True)``.
+        The map's mean is close to the distance, not equal (the upsampling weighs the border less)."""
+        layers, batch = self._layer_distances(img, ref)
+        h, w = img.shape[-3:-1]
+        dist = layers[0].new_zeros(layers[0].shape[0])
+        spatial = layers[0].new_zeros(layers[0].shape[0], 1, h, w)
+        for layer in layers:
+            dist = dist + layer.mean(dim=(1, 2, 3))
+            spatial = spatial + F.interpolate(layer, size=(h, w), mode="bilinear", align_corners=False)
+        return dist.reshape(batch), spatial[:, 0].reshape(*batch, h, w)
+
+    def _layer_distances(self, img: torch.Tensor, ref: torch.Tensor) -> tuple[list[torch.Tensor], tuple]:
+        """(each tap's per-pixel distance [B, 1, h, w] at its resolution, the batch shape [...])."""
         img, ref = torch.broadcast_tensors(img, ref)
         if img.ndim < 3 or img.shape[-1] != 3:
             raise ValueError(f"LPIPS expects images [..., H, W, 3], got shape {tuple(img.shape)}")
@@ -315,12 +337,11 @@ class LPIPS(nn.Module):
         shift, scale = x.new_tensor(_SHIFT).view(1, 3, 1, 1), x.new_tensor(_SCALE).view(1, 3, 1, 1)
         x = (2.0 * x - 1.0 - shift) / scale
         n = x.shape[0] // 2
-        dist = x.new_zeros(n)
+        layers = []
         for feat, lin in zip(self.backbone(x), self.lins, strict=True):
             feat = _unit_normalize(feat)
-            diff = (feat[:n] - feat[n:]) ** 2
-            dist = dist + lin(diff).mean(dim=(1, 2, 3))
-        return dist.reshape(batch)
+            layers.append(lin((feat[:n] - feat[n:]) ** 2))
+        return layers, batch
 
 
 @functools.lru_cache(maxsize=8)
@@ -331,3 +352,9 @@ def _cached_module(net: str, device: str) -> LPIPS:
 def lpips(img: torch.Tensor, ref: torch.Tensor, net: str = "vgg") -> torch.Tensor:
     """LPIPS v0.1 of images [..., H, W, 3] in [0, 1] -> [...]; one cached module per (net, device)."""
     return _cached_module(_check_net(net), str(img.device))(img, ref)
+
+
+def lpips_map(img: torch.Tensor, ref: torch.Tensor, net: str = "vgg") -> tuple[torch.Tensor, torch.Tensor]:
+    """(LPIPS v0.1 [...] as ``lpips`` gives it, its spatial map [..., H, W]) of images [..., H, W, 3]
+    in [0, 1], from one pass of the backbone (``LPIPS.spatial``)."""
+    return _cached_module(_check_net(net), str(img.device)).spatial(img, ref)

@@ -22,9 +22,19 @@ from tqdm import tqdm
 from ..config import apply_overrides
 from ..data.frames import camera_key
 from ..data.scene import Frame, available_splits, load_image, load_scene
+from ..extrapolate.predictor import MOTIONS
 from ..run import load_run, run_data
 from ..utils import atomic_write_image
 from .metrics import mae_psnr, mse, psnr, ssim
+from .moving import (
+    MOVING_DILATION,
+    MovingMasks,
+    aggregate_moving,
+    mask_path,
+    masked_scores,
+    missing_note,
+    moving_per_time,
+)
 
 
 def split_frames(
@@ -90,6 +100,9 @@ def _aggregate(records: list[dict], with_lpips: bool) -> dict:
     if with_lpips:
         for key in ("lpips_vgg", "lpips_alex"):
             out[key] = sum(r[key] for r in records) / len(records)
+    moving = aggregate_moving(records, with_lpips)
+    if moving is not None:
+        out["moving"] = moving
     return out
 
 
@@ -105,15 +118,22 @@ def evaluate_run(
     render_settings: dict | None = None,
     out: Path | None = None,
     horizon_end: float | None = None,
+    motion: str = "trace",
+    moving_dilation: int | None = None,
 ) -> dict:
-    """Render both splits of a trained run and score them (schema in docs/EVALUATION.md); with
-    ``future_end``, the extrapolation split is the validation future (``split_frames``).
+    """Render both splits of a trained run and score them (schema in docs/EVALUATION.md), the whole
+    images and the pixels that move (``moving.py``: each frame's moving mask, dilated by
+    ``moving_dilation`` pixels, default ``MOVING_DILATION``); with ``future_end``, the extrapolation
+    split is the validation future (``split_frames``). ``motion``: how the run moves its Gaussians
+    (``Predictor.gaussians_at``: ``trace``, ``f_defo`` or ``hold``), recorded in the result.
     ``render_settings``: ``extrapolation`` settings that change rendering without a new calibration,
     by dotted name as in ``config.apply_overrides`` (e.g. ``{"extrapolation.free_bodies": False}``).
     ``out``: the folder of the rendered images (``OUT/<split>/<frame>.png``; default ``RUN/eval``).
     ``horizon_end``: score only the future up to this time (``split_frames``).
     Ground truth the scene's ``gt/`` lacks, or holds in another layout, is skipped and said so in the
     result's ``notes``."""
+    if motion not in MOTIONS:
+        raise ValueError(f"motion {motion!r}: expected one of {list(MOTIONS)}")
     run = Path(run)
     out = run / "eval" if out is None else Path(out)
     loaded = load_run(run, device, data)
@@ -126,12 +146,11 @@ def evaluate_run(
     t_end = cfg.t_train_end if cfg.t_train_end is not None else scene.t_train_end
     t_end = meta["t_max"] if t_end is None else t_end
     dev = predictor.device
-    lpips_fn = None
-    if with_lpips:
-        from .lpips import lpips as lpips_fn
     result: dict = {}
     notes: list[str] = []
     names = part_names(data, notes)
+    moving_dilation = MOVING_DILATION if moving_dilation is None else moving_dilation
+    masks = MovingMasks(data, cfg.downscale, moving_dilation)
     splits = split_frames(data, t_end, cfg.downscale, True, future_end, horizon_end)
     progress = tqdm(
         total=sum(map(len, splits.values())), desc="eval", unit="image", disable=None, leave=False
@@ -143,35 +162,34 @@ def evaluate_run(
             by_time[f.time].append((cameras, f))
         records = []
         for t in sorted(by_time):
-            gaussians = predictor.gaussians_at(t)
+            gaussians = predictor.gaussians_at(t, motion)
             for cameras, f in by_time[t]:
                 # (a training camera in its own colours)
                 pred = predictor.render(f.camera.to(dev), gaussians=gaussians, camera_id=f.camera_id)
                 gt = load_image(f, scene.background).to(dev)
+                moving, source = masks.mask(f)
+                moving = None if moving is None else torch.as_tensor(moving, device=dev)
                 if half_res:
                     pred, gt = (
                         torch.nn.functional.avg_pool2d(x.permute(2, 0, 1)[None], 2)[0].permute(1, 2, 0)
                         for x in (pred, gt)
                     )
-                rec = {
-                    "t": t,
-                    "cameras": cameras,
-                    "mse": float(mse(pred, gt)),
-                    "psnr": float(psnr(pred, gt)),
-                    "ssim": float(ssim(pred, gt)),
-                }
-                if lpips_fn is not None:
-                    rec["lpips_vgg"] = float(lpips_fn(pred, gt, net="vgg"))
-                    rec["lpips_alex"] = float(lpips_fn(pred, gt, net="alex"))
+                    if moving is not None:  # a pixel of the half image moves if one of its four does
+                        moving = torch.nn.functional.max_pool2d(moving[None, None].float(), 2)[0, 0] > 0
+                rec = {"t": t, "cameras": cameras, **_scores(pred, gt, moving, source, with_lpips)}
                 records.append(rec)
                 if parts is not None:
                     parts = _add_part_errors(parts, pred, gt, mask_path(data, f), split, notes)
                 if save_images:
                     atomic_write_image(out / split / f"{f.name}.png", pred)
                 progress.update(1)
-        summary = _aggregate(records, lpips_fn is not None)
+        summary = _aggregate(records, with_lpips)
+        if "moving" in summary:
+            summary["moving"]["dilation"] = moving_dilation
+        if note := missing_note(split, records):
+            notes.append(note)
         if split == "extrapolation":
-            summary["per_time"] = _per_time(records, lpips_fn is not None)
+            summary["per_time"] = _per_time(records, with_lpips)
             # training cameras (future time only) vs the others (future time and a new view)
             summary["per_cameras"] = {
                 c: _aggregate([r for r in records if r["cameras"] == c], False)
@@ -181,10 +199,13 @@ def evaluate_run(
             summary["per_part"] = parts.summary()
         result[split] = summary
     progress.close()
+    notes += [n for n in masks.notes if n not in notes]
     if (data / "gt").is_dir() and result["extrapolation"].get("frames"):
         from .physics import ground_truth_problem, physics_errors
 
         problem = ground_truth_problem(data)
+        if motion != "trace":
+            problem = f"they measure the learned physics, and the motion scored is {motion!r}"
         if problem is None:
             future = [r["t"] for r in result["extrapolation"]["per_time"]]
             result["physics"] = physics_errors(predictor, data, future)
@@ -192,6 +213,7 @@ def evaluate_run(
             notes.append(f"physics errors skipped: {problem}")
     result.update(
         method=cfg.method,
+        motion=motion,
         preset=cfg.preset,
         scene=str(data),
         t_train_end=t_end,
@@ -206,9 +228,29 @@ def evaluate_run(
     return result
 
 
-def mask_path(data: Path, f: Frame) -> Path:
-    """Where ``tracegs synth`` keeps the part-id mask of a frame's image (``gt/masks/SPLIT/NAME``)."""
-    return Path(data) / "gt" / "masks" / f.image_path.parent.name / f.image_path.name
+def _scores(
+    pred: torch.Tensor, gt: torch.Tensor, moving: torch.Tensor | None, source: str | None, with_lpips: bool
+) -> dict:
+    """One frame's numbers: the whole image's, and ``moving`` (``masked_scores`` and its mask's
+    ``source``; ``"none"``: no source had a mask, ``"empty"``: nothing moves in view)."""
+    rec = {"mse": float(mse(pred, gt)), "psnr": float(psnr(pred, gt)), "ssim": float(ssim(pred, gt))}
+    maps = None
+    if with_lpips:
+        from .lpips import lpips, lpips_map
+
+        maps = {} if moving is not None and bool(moving.any()) else None
+        for net in ("vgg", "alex"):
+            if maps is None:
+                rec[f"lpips_{net}"] = float(lpips(pred, gt, net=net))
+            else:  # one pass of the backbone gives the distance and its map
+                value, maps[f"lpips_{net}"] = lpips_map(pred, gt, net=net)
+                rec[f"lpips_{net}"] = float(value)
+    if moving is None:
+        rec["moving"] = {"source": "none"}
+    else:
+        scores = masked_scores(pred, gt, moving, maps)
+        rec["moving"] = {"source": "empty"} if scores is None else {**scores, "source": source}
+    return rec
 
 
 def _add_part_errors(parts, pred, gt, mask: Path, split: str, notes: list[str]):
@@ -294,5 +336,7 @@ def _per_time(records: list[dict], with_lpips: bool) -> list[dict]:
         row = {"t": t, "psnr": mae_psnr([r["mse"] for r in g]), "ssim": sum(r["ssim"] for r in g) / len(g)}
         if with_lpips:
             row["lpips_vgg"] = sum(r["lpips_vgg"] for r in g) / len(g)
+        if (moving := moving_per_time(g, with_lpips)) is not None:
+            row["moving"] = moving
         rows.append(row)
     return rows

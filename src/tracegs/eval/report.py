@@ -55,6 +55,19 @@ def _parts(split: str, summary: dict) -> str | None:
     return f"{split} by part: " + "; ".join(cells)
 
 
+def _moving(result: dict) -> str | None:
+    cells = []
+    for split in ("interpolation", "extrapolation"):
+        m = result.get(split, {}).get("moving") or {}
+        if not m.get("frames"):
+            continue
+        text = f"{split} {m['mae_psnr']:.2f} dB"
+        text += "" if m.get("ssim") is None else f", SSIM {m['ssim']:.4f}"
+        text += "" if m.get("lpips_vgg") is None else f", LPIPS-VGG {m['lpips_vgg']:.4f}"
+        cells.append(text + f" ({m['frames']} frames, {100 * m['pixel_share']:.0f}% of their pixels)")
+    return "where things move (MAE-PSNR): " + "; ".join(cells) if cells else None
+
+
 def _physics(physics: dict) -> list[str]:
     lines = []
     for part, p in sorted((physics or {}).get("parts", {}).items()):
@@ -72,9 +85,11 @@ def _physics(physics: dict) -> list[str]:
 
 
 def format_summary(result: dict) -> str:
-    """Plain-text summary of an ``evaluate_run`` result: header, split table, horizon, parts, physics,
-    and the notes on what was skipped."""
+    """Plain-text summary of an ``evaluate_run`` result: header, split table, the moving pixels,
+    horizon, parts, physics, and the notes on what was skipped."""
     head = f"{result.get('scene', '?')}: {result.get('method', '?')} ({result.get('preset', '?')})"
+    if result.get("motion", "trace") != "trace":
+        head += f", motion {result['motion']}"
     if result.get("gaussians") is not None:
         head += f", {result['gaussians']} Gaussians"
     if result.get("train_seconds") is not None:
@@ -82,7 +97,7 @@ def format_summary(result: dict) -> str:
     if result.get("t_train_end") is not None:
         head += f"; future: t > {result['t_train_end']:.3f}"
     lines = [head, *_split_table(result)]
-    optional = [_horizon(result.get("extrapolation", {}))]
+    optional = [_moving(result), _horizon(result.get("extrapolation", {}))]
     optional += [_parts(s, result.get(s, {})) for s in ("interpolation", "extrapolation")]
     lines += [x for x in optional if x]
     lines += _physics(result.get("physics"))

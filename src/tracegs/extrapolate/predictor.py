@@ -31,10 +31,12 @@ from .state import ExtrapolationState
 from .still import moving_after_handover
 from .surface import SurfacePainters
 
-MOTIONS = ("trace", "f_defo")
+MOTIONS = ("trace", "f_defo", "hold")
 """How a ``Predictor`` moves the Gaussians: ``trace`` (f_defo up to the handover, then the learned
-physics and the chosen parts' models: what TRACE predicts) or ``f_defo`` (the deformation field queried
-at every time, past its training span too: what DefGS predicts)."""
+physics and the chosen parts' models: what TRACE predicts), ``f_defo`` (the deformation field queried
+at every time, past its training span too: what DefGS predicts) or ``hold`` (f_defo up to the training
+span's end t_max, then f_defo's Gaussians at t_max held still: the baseline "nothing moves any more"
+that a prediction must beat)."""
 
 MAX_TIME_FACTOR = 10.0
 """Latest time a command renders, in multiples of the training span's end (and at least 1): the
@@ -130,11 +132,13 @@ class Predictor:
     @torch.no_grad()
     def gaussians_at(self, t: float, motion: str = "trace") -> dict[str, torch.Tensor]:
         """Geometry of the Gaussians at time ``t`` (``means`` [N, 3], ``quats`` [N, 4], log-``scales``
-        [N, 3]) under ``motion`` (``MOTIONS``): f_defo up to the handover, then the learned physics,
-        the still Gaussians, the free bodies and the joint parts."""
+        [N, 3]) under ``motion`` (``MOTIONS``): for ``trace`` f_defo up to the handover, then the
+        learned physics, the still Gaussians, the free bodies and the joint parts."""
         model, g = self.model, self.model.gaussians
         if motion == "f_defo":
             return model.deform(t)
+        if motion == "hold":
+            return model.deform(min(t, self.t_max))
         if motion != "trace":
             raise ValueError(f"motion {motion!r}: expected one of {list(MOTIONS)}")
         if model.method == "static":
