@@ -234,3 +234,12 @@ def build_all(jobs: int | None = None) -> list[dict]:
     workers = max(1, jobs or os.cpu_count() or 1)
     with ThreadPoolExecutor(max_workers=min(workers, len(EXTENSIONS))) as pool:
         return list(pool.map(one, EXTENSIONS.values()))
+
+
+def format_build_report(report: list[dict]) -> str:
+    """``build_all``'s report as ``tracegs build`` prints it: a line an extension, ready or its fallback."""
+    return "\n".join(
+        f"{e['what']}: "
+        + (f"ready ({e['seconds']:.0f} s)" if e["built"] else f"not built ({e['error']}); its fallback runs")
+        for e in report
+    )

@@ -254,15 +254,10 @@ def _metrics(a: Metrics) -> None:
 
 def _build(a: Build) -> None:
     """`tracegs build`: every native extension built (or found in the cache), each one's status."""
-    from ..cpp import build_all
+    from ..cpp import build_all, format_build_report
 
     report = build_all()
-    lines = [
-        f"{e['what']}: "
-        + (f"ready ({e['seconds']:.0f} s)" if e["built"] else f"not built ({e['error']}); its fallback runs")
-        for e in report
-    ]
-    _dump(report, a.json, "\n".join(lines))
+    _dump(report, a.json, format_build_report(report))
 
 
 def _bench(a: Bench) -> None:
