@@ -107,6 +107,7 @@ def summary(scene: str, label: str, r: dict) -> dict:
         "mean psnr, scored": round(float(np.mean(scored)), 2) if scored else None,
         "in sight at last ground truth": checked[-1]["in_sight"] if checked else None,
         "in sight at the end": rows[-1]["in_sight"] if rows else None,
+        "spread at the end": rows[-1].get("spread") if rows else None,
     }
 
 

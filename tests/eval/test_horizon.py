@@ -23,6 +23,7 @@ def test_the_long_horizon_says_where_nothing_was_checked(tiny_scene, tmp_path):
     assert result["checked_until"] == pytest.approx(1.0) and result["rendered_until"] == pytest.approx(2.0)
     assert "psnr" in rows[0] and all("psnr" not in r for r in rows[1:])  # no image after t = 1
     assert all(0 <= r["in_sight"] <= 1 for r in rows)
+    assert all(r["spread"] > 0 for r in rows)  # (how far apart what moves lies, against t_max)
     assert result["cameras"] == [3]  # the one camera training never used
     assert len(list((tmp_path / "horizon").glob("*.png"))) == len(rows)
     assert "nothing checks them" in result["note"]
@@ -72,3 +73,14 @@ def test_in_sight_is_the_share_of_what_moves_that_stays_near(tiny_scene, tmp_pat
     quarter = property(lambda self: torch.arange(len(self.gaussians["means"]) // 4))
     monkeypatch.setattr(TraceModel, "moving_rows", quarter)
     assert long_horizon(tmp_path / "run", 1.5, out=tmp_path / "h2")["per_time"][0]["in_sight"] == 0.0
+
+
+def test_spread_is_the_neighbours_distance_and_grows_when_what_moves_scatters():
+    from tracegs.eval.horizon import _sample, spread
+
+    grid = torch.stack(torch.meshgrid(*(torch.arange(6.0),) * 3, indexing="ij"), -1).reshape(-1, 3)
+    sample = _sample(len(grid))
+    assert spread(grid, sample) == pytest.approx(1.0)  # a unit grid: the 4 nearest at distance 1
+    assert spread(3.0 * grid, sample) == pytest.approx(3.0)  # scattered three times as far apart
+    assert spread(grid + 5.0, sample) == pytest.approx(1.0)  # moved as a whole: the same spread
+    assert spread(grid[:1], _sample(1)) == 0.0

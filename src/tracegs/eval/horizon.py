@@ -6,7 +6,9 @@ the free bodies and joint laws, which end there); up to the last ground-truth ti
 only the renders, and how much of what moves stays in sight (the share of the Gaussians the fields
 move, all of them without a static mask, whose centres stay inside the box of their positions at
 ``t_max``, padded by half its size): a prediction that flies apart shows as a falling share long
-before anyone looks at the images.
+before anyone looks at the images. A prediction that scatters in place (a person's Gaussians drifting
+apart into a cloud) shows as a growing ``spread``: the median distance of those Gaussians to their
+nearest neighbours, as a multiple of its value at ``t_max`` (``spread``).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import torch
 from ..data.dataset import frame_interval
 from ..data.frames import load_image
 from ..data.scene import available_splits, load_scene
+from ..models.gaussians import nearest_neighbours
 from ..run import load_run, run_data
 from ..utils import atomic_write_image
 from .metrics import mae_psnr, mse
@@ -56,6 +59,8 @@ def long_horizon(
     at_max = _moving(predictor.gaussians_at(t_max)["means"], moving)
     lo, hi = at_max.min(0).values, at_max.max(0).values
     pad = 0.5 * (hi - lo)
+    sample = _sample(at_max.shape[0])
+    spacing = spread(at_max, sample)
     rows, k = [], 1
     while t_max + k * dt <= until + 0.01 * dt:
         t = t_max + k * dt
@@ -63,6 +68,7 @@ def long_horizon(
         means = _moving(g["means"], moving)
         inside = ((means >= lo - pad) & (means <= hi + pad)).all(-1).float().mean()
         row = {"t": round(t, 6), "in_sight": round(float(inside), 4)}
+        row["spread"] = round(spread(means, sample) / spacing, 4) if spacing > 0 else None
         scores = []
         for c, f in views.items():
             image = predictor.render(f.camera.to(dev), gaussians=g, camera_id=f.camera_id)
@@ -87,6 +93,26 @@ def long_horizon(
             f"{end_of_truth:.4g}; past that, renders only: nothing checks them"
         ),
     }
+
+
+SPREAD_NEIGHBOURS, SPREAD_SAMPLE = 4, 4096
+"""``spread`` looks at the ``SPREAD_NEIGHBOURS`` nearest neighbours of at most ``SPREAD_SAMPLE``
+Gaussians (a fixed sample of those the fields move, the same at every time)."""
+
+
+def spread(means: torch.Tensor, sample: torch.Tensor) -> float:
+    """The median over the Gaussians ``sample`` (indices into ``means`` [N, 3]) of their mean distance
+    to their ``SPREAD_NEIGHBOURS`` nearest neighbours among ``means``: how far apart what moves lies.
+    0 with fewer than two Gaussians."""
+    if means.shape[0] < 2:
+        return 0.0
+    d2, _ = nearest_neighbours(means.float(), SPREAD_NEIGHBOURS, of=sample.to(means.device))
+    return float(d2.sqrt().mean(-1).median())
+
+
+def _sample(n: int) -> torch.Tensor:
+    """At most ``SPREAD_SAMPLE`` of ``n`` indices, evenly spaced (the same at every time)."""
+    return torch.linspace(0, n - 1, min(n, SPREAD_SAMPLE)).round().long().unique()
 
 
 def _moving(means: torch.Tensor, rows: torch.Tensor | None) -> torch.Tensor:
