@@ -27,11 +27,13 @@ appearance_ceiling, continual, demo_time = map(_script, ("appearance_ceiling", "
 fields_floor, horizon, lpips_calibration = map(_script, ("fields_floor", "horizon", "lpips_calibration"))
 nonconstant_forces, panoptic, segmentation = map(_script, ("nonconstant_forces", "panoptic", "segmentation"))
 static_quality, training_speed = map(_script, ("static_quality", "training_speed"))
+ball = _script("ball")
 
 NOTE = "Round 0 trains 1000 static + 4000 dynamic steps, each later round 1000."
 DTYPE_ROW = {"what": training_speed.DTYPE_ROWS, "setting": "bf16, 2 thread(s)"}
 NOTES = {
     "appearance_ceiling": appearance_ceiling.record_notes(12),
+    "ball": ball.NOTES,
     "continual": continual.record_notes(),
     "continual, --note": continual.record_notes(NOTE),
     "fields_floor": fields_floor.record_notes(6),
