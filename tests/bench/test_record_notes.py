@@ -27,13 +27,14 @@ appearance_ceiling, continual, demo_time = map(_script, ("appearance_ceiling", "
 fields_floor, horizon, lpips_calibration = map(_script, ("fields_floor", "horizon", "lpips_calibration"))
 nonconstant_forces, panoptic, segmentation = map(_script, ("nonconstant_forces", "panoptic", "segmentation"))
 static_quality, training_speed = map(_script, ("static_quality", "training_speed"))
-ball = _script("ball")
+ball, moving_regions = _script("ball"), _script("moving_regions")
 
 NOTE = "Round 0 trains 1000 static + 4000 dynamic steps, each later round 1000."
 DTYPE_ROW = {"what": training_speed.DTYPE_ROWS, "setting": "bf16, 2 thread(s)"}
 NOTES = {
     "appearance_ceiling": appearance_ceiling.record_notes(12),
     "ball": ball.NOTES,
+    "moving_regions": moving_regions.NOTES,
     "continual": continual.record_notes(),
     "continual, --note": continual.record_notes(NOTE),
     "fields_floor": fields_floor.record_notes(6),
@@ -119,3 +120,19 @@ def test_segmentation_rows_carry_what_the_notes_used_to_say():
     assert list(row) == segmentation.COLUMNS
     assert row["ground truth"] == "parts (a, b merged)" and row["segment s"] == 1.2
     assert segmentation.ground_truth([]) == "parts"
+
+
+def test_the_moving_regions_row_reads_tracegs_evals_moving_entries():
+    def split(whole, moving, share=None):
+        return {"mae_psnr": whole, "moving": {"mae_psnr": moving, "pixel_share": share}}
+
+    trace = {"extrapolation": split(30.123, 22.456, 0.08), "interpolation": split(29.0, 25.0)}
+    hold = {"extrapolation": split(25.0, 15.5)}
+    row = moving_regions.row("fan", trace, hold)
+    assert list(row) == moving_regions.COLUMNS
+    assert row == {"scene": "fan", "trace_extrap": 30.12, "trace_extrap_moving": 22.46, "hold_extrap_moving": 15.5,
+                   "trace_interp": 29.0, "trace_interp_moving": 25.0, "moving_share": 0.08}  # fmt: skip
+    assert (
+        moving_regions.row("x", {**trace, "interpolation": {"mae_psnr": 1.0}}, hold)["trace_interp_moving"]
+        is None
+    )
