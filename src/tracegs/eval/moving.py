@@ -45,6 +45,7 @@ import torch
 
 from ..data.frames import DatasetError, Frame
 from ..data.masks import foreground_path, read_id_mask
+from ..data.motion_masks import MotionMasks
 from .metrics import SSIM_WINDOW, mae_psnr, ssim_map
 
 MOVING_DILATION = 3
@@ -75,14 +76,10 @@ def moving_part_ids(motion_json: Path) -> set[int]:
         raise DatasetError(f"{motion_json}: no list of parts with 'id' and 'type' ({err!r})") from None
 
 
-def derived_masks(data: Path, split: str, downscale: int = 1):
+def derived_masks(data: Path, split: str, downscale: int = 1) -> MotionMasks:
     """The motion masks derived from the images of the scene's ``split`` (``MotionMasks``, whose
-    ``mask(frame)`` is an [H, W] bool or None), or None where that module is not there. Raises
+    ``mask(frame)`` is an [H, W] bool, or None for a camera with too few frames). Raises
     ``DatasetError`` when the split's cameras move (no background plate to compare with)."""
-    try:
-        from ..data.motion_masks import MotionMasks
-    except ImportError:
-        return None
     return MotionMasks.of_split(data, split, downscale)
 
 
