@@ -214,9 +214,6 @@ class Run:
     config: TrainConfig
     meta: dict
     """``step``, ``train_seconds``, ``t_max``."""
-    data: Path | None = None
-    """The scene folder it renders on (``run_data``): where the render background was read; None when
-    the folder is not there (the background then black)."""
 
     @property
     def model(self) -> TraceModel:
@@ -288,20 +285,20 @@ def load_run(run: str | Path, device: str = "auto", data: str | Path | None = No
             )
         state = ExtrapolationState(t_max=float(ckpt["t_max"]))
     meta = {"step": ckpt["step"], "train_seconds": ckpt["train_seconds"], "t_max": ckpt["t_max"]}
-    scene, background = _scene_background(cfg, data)
-    return Run(run, Predictor(model, state, cfg.extrapolation, background), cfg, meta, scene)
+    background = _scene_background(cfg, data)
+    return Run(run, Predictor(model, state, cfg.extrapolation, background), cfg, meta)
 
 
-def _scene_background(cfg: TrainConfig, data: str | Path | None) -> tuple[Path | None, tuple | None]:
-    """(the scene folder of a run, its training split's background), or (None, None) where there is no
-    scene to read (a run folder copied without its scene renders on black)."""
+def _scene_background(cfg: TrainConfig, data: str | Path | None) -> tuple | None:
+    """The background of the run's scene (``data`` when given, else the one it was trained on), or
+    None where there is no scene to read (a run folder copied without its scene renders on black)."""
     try:
         path = run_data(cfg, data)
     except FileNotFoundError:
         if data is not None:
             raise
-        return None, None
-    return path, load_scene(path, "train", cfg.downscale).background
+        return None
+    return load_scene(path, "train", cfg.downscale).background
 
 
 def calibrate_run(

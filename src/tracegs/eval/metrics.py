@@ -4,12 +4,15 @@ SSIM), the SSIM map that a masked SSIM averages, LPIPS, and a comparer of two im
 
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
 
 import torch
 
 from ..image_metrics import SSIM_SIGMA, SSIM_WINDOW, load_image, mae_psnr, mse, psnr, ssim
 from . import lpips as _lpips
+
+_msssim = importlib.import_module("pytorch_msssim.ssim")  # (the package's name `ssim` is its function)
 
 __all__ = [
     "SSIM_SIGMA",
@@ -37,13 +40,11 @@ def ssim_map(img: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
     if h < SSIM_WINDOW or w < SSIM_WINDOW:
         raise ValueError(f"SSIM needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {h}x{w}")
     x, y = img.permute(2, 0, 1)[None], ref.permute(2, 0, 1)[None].to(img.dtype)  # [1, 3, H, W]
-    coords = torch.arange(SSIM_WINDOW, dtype=torch.float) - SSIM_WINDOW // 2
-    g = torch.exp(-(coords**2) / (2 * SSIM_SIGMA**2))
-    g = (g / g.sum()).to(x)
+    # pytorch-msssim's own window and "valid" separable filter, as ``ssim`` computes with them
+    win = _msssim._fspecial_gauss_1d(SSIM_WINDOW, SSIM_SIGMA).repeat(3, 1, 1, 1).to(x)
 
-    def blur(z: torch.Tensor) -> torch.Tensor:  # separable, valid, per channel
-        z = torch.nn.functional.conv2d(z, g.view(1, 1, -1, 1).expand(3, 1, -1, 1), groups=3)
-        return torch.nn.functional.conv2d(z, g.view(1, 1, 1, -1).expand(3, 1, 1, -1), groups=3)
+    def blur(z: torch.Tensor) -> torch.Tensor:
+        return _msssim.gaussian_filter(z, win)
 
     c1, c2 = 0.01**2, 0.03**2
     mu_x, mu_y = blur(x), blur(y)

@@ -69,9 +69,15 @@ def moving_part_ids(motion_json: Path) -> set[int]:
     """The ids of the parts of ``gt/motion.json`` that move: every part whose ``type`` is not
     ``static`` (``tracegs synth`` labels the parts that never move so). DatasetError naming the file
     when it holds no list of parts with ids."""
+    return _part_ids(motion_json)[0]
+
+
+def _part_ids(motion_json: Path) -> tuple[set[int], set[int]]:
+    """(the moving parts' ids, every part's id) of ``gt/motion.json`` (``moving_part_ids``)."""
     try:
         parts = json.loads(Path(motion_json).read_text())["parts"]
-        return {int(p["id"]) for p in parts if p.get("type", "static") != "static"}
+        moving = {int(p["id"]) for p in parts if p.get("type", "static") != "static"}
+        return moving, {int(p["id"]) for p in parts}
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
         raise DatasetError(f"{motion_json}: no list of parts with 'id' and 'type' ({err!r})") from None
 
@@ -112,8 +118,8 @@ class MovingMasks:
         if not (gt / "masks").is_dir():
             return None, set()
         try:
-            moving = moving_part_ids(gt / "motion.json")
-            known = {0} | {int(p["id"]) for p in json.loads((gt / "motion.json").read_text())["parts"]}
+            moving, parts = _part_ids(gt / "motion.json")
+            known = {0} | parts
         except DatasetError as err:
             self.notes.append(f"moving masks: {gt / 'masks'} not used: {err}")
             return None, set()
