@@ -95,3 +95,24 @@ def test_frozen_surroundings_take_no_step_in_stage_2(capture, tmp_path):  # noqa
     after = trainer.model.gaussians
     assert all(torch.equal(after[k][mask], before[k][mask]) for k in before)
     assert not torch.equal(after["means"][~mask], before["means"][~mask])  # the subject still learns
+
+
+def test_stage_2_densifies_what_moves_and_leaves_the_surroundings(capture, tmp_path):  # noqa: F811
+    cfg = make_config("capture", data=capture, run=tmp_path / "run", init_points=300)
+    cfg.static_iterations = cfg.densify.refine_stop = 3
+    cfg.dynamic_iterations, cfg.init_surroundings, cfg.hull_resolution = 6, 500, 32
+    cfg.densify.refine_every, cfg.densify.grow_grad2d, cfg.densify.moving_refine_stop = 2, 1e-12, 8
+    trainer = Trainer(cfg, progress=False)
+    for _ in range(cfg.static_iterations + 1):  # stage 1, then the step that marks the surroundings
+        trainer.train_step()
+    held = trainer.model.static_mask.clone()
+    surroundings = {k: v.detach()[held].clone() for k, v in trainer.model.gaussians.items()}
+    moving = int((~held).sum())
+    for _ in range(4):
+        trainer.train_step()
+    mask = trainer.model.static_mask
+    assert mask.shape[0] == trainer.model.gaussians["means"].shape[0] and int((~mask).sum()) > moving
+    assert all(torch.equal(trainer.model.gaussians[k].detach()[mask], v) for k, v in surroundings.items())
+    trainer.train()  # the run goes on to its end (rows changed mid-stage) and saves
+    run = load_run(tmp_path / "run", "cpu")
+    assert torch.equal(run.model.static_mask, trainer.model.static_mask)

@@ -117,3 +117,31 @@ def test_growth_under_a_budget_takes_the_largest_gradients():
     assert report == {"cloned": 1, "split": 1, "pruned": 0}
     assert params["means"].shape[0] == 8
     assert torch.equal(params["means"][5], before[1])  # the clone follows the kept rows 0, 1, 2, 4, 5
+
+
+def test_moving_refinement_leaves_the_held_gaussians_and_extends_the_mask():
+    params, opts = _setup()
+    params["opacities"].data[5] = -10.0  # transparent: pruned, unless held
+    params["opacities"].data[4] = -10.0
+    held = torch.tensor([True, True, False, False, False, True])
+    strategy = DefaultStrategy(
+        DensifyConfig(
+            refine_every=1, grow_grad2d=1e-9, reset_every=0, moving_refine_stop=10, moving_max_gaussians=4
+        ),
+        scene_extent=10.0,
+    )
+    state = strategy.initialize_state()
+    means2d = torch.zeros(6, 2, requires_grad=True)
+    (means2d * torch.arange(1.0, 13.0).reshape(6, 2)).sum().backward()
+    info = {"means2d": means2d, "radii": torch.ones(6, dtype=torch.int32), "width": 10, "height": 10}
+    before = {k: p.detach().clone() for k, p in params.items()}
+    report, grown = strategy.refine_moving(params, opts, state, step=1, render_infos=[info], held=held)
+    _check_aligned(params, opts)
+    # 3 moving (rows 2, 3, 4), budget 4: one clone, of the strongest gradient (row 4, transparent:
+    # pruned with its clone); the held rows keep their values though row 5 is transparent
+    assert report == {"cloned": 1, "split": 0, "pruned": 2}
+    assert grown.shape == (params["means"].shape[0],) and grown.tolist() == [True, True, False, False, True]
+    for k, p in params.items():
+        assert torch.equal(p[grown], before[k][held])
+    _, same = strategy.refine_moving(params, opts, state, step=10, render_infos=[info], held=grown)
+    assert same is grown  # past moving_refine_stop nothing changes

@@ -75,6 +75,14 @@ class DensifyConfig:
     """Relative to the scene extent: larger Gaussians are removed (after the first opacity reset)."""
     max_gaussians: int = 1_000_000
     """Growth stops at this count (a budget for slow devices)."""
+    moving_refine_stop: int = 0
+    """Step of the run until which stage 2 densifies the Gaussians that move (those not held static by
+    ``stage2.static_outside_masks`` or ``skip_static``; all, where none is held): clone, split, prune
+    and opacity resets on the schedule above, the held ones untouched, so that what moves gets
+    Gaussians where the images of later times need them. 0 = off (stage 2 trains the Gaussians of
+    stage 1)."""
+    moving_max_gaussians: int = 20_000
+    """Stage 2's densification grows the moving Gaussians up to this count."""
     refine_stop_fraction: float = 0.5
     """Densification and opacity resets also stop after this fraction of the run's iterations, so that a
     shortened run (e.g. ``--dynamic-iterations 2000``) still ends with a phase of plain optimisation."""

@@ -62,6 +62,8 @@ RULES: dict[str, tuple] = {
     "densify.reset_opacity": (lambda v: 0 < v < 1, "in (0, 1)"),
     "densify.prune_opacity": (lambda v: 0 <= v < 1, "in [0, 1)"),
     "densify.max_gaussians": (_positive_int, "a positive integer"),
+    "densify.moving_refine_stop": (_non_negative_int, "a non-negative integer (0 = off)"),
+    "densify.moving_max_gaussians": (_positive_int, "a positive integer"),
     "densify.refine_stop_fraction": (_unit, "in [0, 1]"),
     "stage2.dt_frames": (_positive, "a positive number"),
     "stage2.time_growth_fraction": (_unit, "in [0, 1]"),

@@ -71,7 +71,7 @@ class DefaultStrategy:
             self._accumulate(params, state, info)
         report: dict[str, int] = {}
         if step > cfg.refine_start and step % cfg.refine_every == 0:
-            report = self._refine(params, optimizers, state, step)
+            report, _ = self._refine(params, optimizers, state, step)
         if cfg.reset_every and step > 0 and step % cfg.reset_every == 0:
             limit = torch.logit(torch.tensor(cfg.reset_opacity * 2)).item()
             params["opacities"].data.clamp_(max=limit)
@@ -94,27 +94,72 @@ class DefaultStrategy:
         state["grad2d"][visible] += g[visible].norm(dim=-1)
         state["count"][visible] += 1
 
-    def _refine(self, params, optimizers, state, step) -> dict[str, int]:
+    def refine_moving(
+        self,
+        params: nn.ParameterDict,
+        optimizers: dict[str, torch.optim.Optimizer],
+        state: dict[str, Any],
+        step: int,
+        render_infos: list[dict],
+        held: torch.Tensor | None,
+    ) -> tuple[dict[str, int], torch.Tensor | None]:
+        """Stage 2's densification of the Gaussians that move (``densify.moving_refine_stop``): as
+        ``step_post_backward``, but the Gaussians ``held`` [N] bool (static, None: none) are neither
+        grown, pruned nor reset, and growth stops at ``densify.moving_max_gaussians`` moving ones. The
+        report, and ``held`` for the new rows (a grown Gaussian moves)."""
+        cfg = self.cfg
+        if step >= cfg.moving_refine_stop:
+            return {}, held
+        for info in render_infos:
+            self._accumulate(params, state, info)
+        report: dict[str, int] = {}
+        if step % cfg.refine_every == 0:
+            report, held = self._refine(params, optimizers, state, step, held)
+        if cfg.reset_every and step % cfg.reset_every == 0:
+            limit = torch.logit(torch.tensor(cfg.reset_opacity * 2)).item()
+            opacities = params["opacities"].data
+            moving = slice(None) if held is None else ~held
+            opacities[moving] = opacities[moving].clamp(max=limit)
+            reset_optimizer_state(optimizers["opacities"])
+        return report, held
+
+    def _refine(
+        self, params, optimizers, state, step, held=None
+    ) -> tuple[dict[str, int], torch.Tensor | None]:
+        """Clone, split and prune on the accumulated gradients; with ``held`` (stage 2's moving
+        densification) only the Gaussians not held, within ``densify.moving_max_gaussians``."""
         cfg = self.cfg
         if state["grad2d"] is None:
-            return {}
+            return {}, held
         avg = state["grad2d"] / state["count"].clamp_min(1)
         high = avg > cfg.grow_grad2d
         max_scale = torch.exp(params["scales"]).max(dim=-1).values
         small = max_scale <= cfg.grow_scale3d * self.scene_extent
-        budget = max(cfg.max_gaussians - params["means"].shape[0], 0)
+        n = params["means"].shape[0]
+        if held is None:
+            budget = max(cfg.max_gaussians - n, 0)
+        else:
+            high &= ~held
+            budget = max(cfg.moving_max_gaussians - int((~held).sum()), 0)
         grow = _strongest(high, avg, budget)  # clone and split each add one Gaussian
         clone, split = grow & small, grow & ~small
         n_clone, n_split = int(clone.sum()), int(split.sum())
         if n_clone:
             duplicate(params, optimizers, clone)
+            held = None if held is None else torch.cat([held, torch.zeros_like(held[clone])])
         if n_split:
             split = torch.cat([split, torch.zeros(n_clone, dtype=torch.bool, device=split.device)])
             split_gaussians(params, optimizers, split)
+            if held is not None:  # (each split Gaussian's two halves go to the end)
+                held = torch.cat(
+                    [held[~split], torch.zeros(2 * n_split, dtype=torch.bool, device=held.device)]
+                )
         opacity = torch.sigmoid(params["opacities"])
         prune = opacity < cfg.prune_opacity
         if step > cfg.reset_every:
             prune |= torch.exp(params["scales"]).max(dim=-1).values > cfg.prune_scale3d * self.scene_extent
+        if held is not None:
+            prune &= ~held
         n_prune = int(prune.sum())
         if n_prune == len(prune):
             raise ValueError(
@@ -125,8 +170,9 @@ class DefaultStrategy:
             )
         if n_prune:
             remove(params, optimizers, prune)
+            held = None if held is None else held[~prune]
         state["grad2d"] = state["count"] = None
-        return {"cloned": n_clone, "split": n_split, "pruned": n_prune}
+        return {"cloned": n_clone, "split": n_split, "pruned": n_prune}, held
 
 
 def _strongest(mask: torch.Tensor, score: torch.Tensor, budget: int) -> torch.Tensor:
