@@ -180,6 +180,7 @@ def test_derived_masks_are_wired_as_the_third_source(tmp_path, monkeypatch):
     frame = load_scene(scene, "test").frames[0]
     masks = derived_masks(scene, "test")  # the tiny scene's test cameras hold too few frames for a plate
     assert masks.mask(frame) is None
+    assert masks.settings.dilate == 0  # grown once, by MovingMasks, as every source
 
     class Derived:
         def mask(self, f):

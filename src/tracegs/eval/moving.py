@@ -24,7 +24,7 @@ Definitions over the mask M of a frame (``masked_scores``):
 * LPIPS: the spatial LPIPS map (``lpips.lpips_map``: each layer's distances upsampled to the image and
   summed, the official ``spatial=True``) averaged over M. It comes out of the same pass as the
   whole-image LPIPS, so it costs nothing more, and unlike a crop around M it is defined for a mask of
-  any size (the VGG backbone refuses crops under 16 pixels, a flying ball at 320x180 is about 6).
+  any size (the VGG backbone refuses crops under 16 pixels, as small as a far ball's).
 
 A split's numbers aggregate the frames as the whole-image ones do (``protocol._aggregate``): ``psnr`` is
 the mean of per-frame masked PSNRs, ``mae_psnr`` the PSNR of the mean per-frame masked MSE (each frame
@@ -45,7 +45,7 @@ import torch
 
 from ..data.frames import DatasetError, Frame
 from ..data.masks import foreground_path, read_id_mask
-from ..data.motion_masks import MotionMasks
+from ..data.motion_masks import MotionMaskSettings, MotionMasks
 from .metrics import SSIM_WINDOW, mae_psnr, ssim_map
 
 MOVING_DILATION = 3
@@ -53,8 +53,8 @@ MOVING_DILATION = 3
 (2r+1)-square, at the frame's resolution). The edge pixels of a moving part blend it with what lies
 behind it (antialiasing, motion blur: one or two pixels) and a part predicted a pixel or two off
 shows its error on both sides of its true outline; both belong to the moving region. Three pixels
-take them in and stay small beside what moves: a 6-pixel ball at 320x180 grows to 12 pixels, still
-a quarter of its mask."""
+take them in and stay small beside what moves: a ball of 12 pixels across grows to 18, still
+less than half of its mask."""
 
 SOURCES = ("parts", "foreground", "derived")
 """The sources of a frame's moving mask, in the order they are tried."""
@@ -84,9 +84,10 @@ def _part_ids(motion_json: Path) -> tuple[set[int], set[int]]:
 
 def derived_masks(data: Path, split: str, downscale: int = 1) -> MotionMasks:
     """The motion masks derived from the images of the scene's ``split`` (``MotionMasks``, whose
-    ``mask(frame)`` is an [H, W] bool, or None for a camera with too few frames). Raises
-    ``DatasetError`` when the split's cameras move (no background plate to compare with)."""
-    return MotionMasks.of_split(data, split, downscale)
+    ``mask(frame)`` is an [H, W] bool, or None for a camera with too few frames), not yet dilated
+    (``MovingMasks`` dilates every source alike). Raises ``DatasetError`` when the split's cameras
+    move (no background plate to compare with)."""
+    return MotionMasks.of_split(data, split, downscale, MotionMaskSettings(dilate=0))
 
 
 def dilate(mask: np.ndarray, radius: int) -> np.ndarray:
