@@ -1,0 +1,413 @@
+"""One identified motion model per rigid part: how its generalised coordinates ``q`` [n] (a hinge's
+or a rail's one, a chain's joint angles, a free body's position) evolve, ``q'' = f(q, q')``, identified
+from their sampled path over the observed span.
+
+``f`` is a sparse combination of library terms (``physics/sindy.py``): a constant (gravity, a
+constant force), ``q`` and ``q'`` (springs, damping, and the coupling of the coordinates: two masses on
+springs, or a chain of hinges at small angles, are one linear system), ``sin q`` and ``cos q`` of the
+angular coordinates (a pendulum), ``sign q'`` (Coulomb friction) and ``q'|q'|`` (drag). The path is
+split at its velocity jumps (``physics/events.py``: an impact, a bounce); one law holds on every piece,
+each piece with its own state, and the jumps that reverse a velocity become contacts the model
+bounces on with their restitution. The model continues from the state after the last event.
+
+Selection is as for every law of the project: the model is fitted without the last
+``holdout_fraction`` of the samples (the held-out end), from the terms that sparse regression keeps
+down to one term by dropping the least significant (``_Fits.backward``), each set of terms scored by
+its rollout over the held-out end, and the sparsest set within ``tie`` of the best wins; its
+constants are then refitted on the whole span. It is *adopted* only when
+its held-out error is below ``margin`` times the baseline's (the learned physics' prediction of the
+held-out end, passed in; moving on at the last velocity when none is) and its residual over the whole
+fitted span is at most ``consistency`` of the path's motion; otherwise the result says which test
+failed, and the caller keeps its baseline.
+
+Why sparse regression over a library, not a neural ODE: the constants are the physics (a stiffness, a
+restitution, g) and read as such in the report; a part's path is a few dozen samples, which fix a
+handful of coefficients but not a network; the fit is linear least squares and a small shooting
+problem, seconds on a CPU; and a term the library lacks shows as a failed held-out test, not as a
+model that fits the span and drifts after it.
+
+n: coordinates, F: library terms, T: samples, H: held-out samples. numpy float64.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .events import Event, detect_events, segments
+from .sindy import (
+    TERM_KINDS,
+    Contact,
+    Term,
+    equation,
+    evaluate,
+    independent_terms,
+    integrate,
+    library_terms,
+    shoot,
+    stlsq,
+    term_name,
+)
+
+Array = np.ndarray
+
+MIN_PIECE = 3
+"""Fewest samples of a piece of the path between events that the shooting fit uses."""
+MIN_REGRESSION = 5
+"""Fewest samples of a piece whose smoothed derivatives enter the regression."""
+
+
+def holdout_split(n_samples: int, holdout_fraction: float = 0.25) -> int:
+    """How many of the first samples are fitted; the rest (a ``holdout_fraction``, at least one) are the
+    held-out end, the rows of the baseline ``identify`` takes."""
+    held = max(1, round(holdout_fraction * n_samples))
+    if n_samples - held < 2 * MIN_REGRESSION:
+        raise ValueError(f"{n_samples} samples are too few to hold out {held} and fit the rest")
+    return n_samples - held
+
+
+@dataclass
+class IdentifiedModel:
+    """An identified model ``q'' = coefficients @ terms(q, q')`` with its contacts, its state at the end
+    of the observed span, and the verdict of its selection."""
+
+    terms: list[Term]
+    coefficients: Array
+    """[n, F] each coordinate's coefficient of each term."""
+    angular: tuple[bool, ...]
+    t_end: float
+    q_end: Array
+    """[n] the fitted trajectory's state at ``t_end``, the last sample (after the last event)."""
+    v_end: Array
+    contacts: tuple[Contact, ...] = ()
+    events: tuple[Event, ...] = ()
+    threshold: float = 0.0
+    held_out: dict = field(default_factory=dict)
+    """``{"samples", "model", "baseline"}``: RMS errors on the held-out end."""
+    residual: float = math.inf
+    """RMS residual over the fitted span relative to the path's motion (RMS about its mean)."""
+    adopted: bool = False
+    why: str = ""
+    dt_max: float = 0.0
+    """Largest integration step."""
+    tried: list = field(default_factory=list)
+    """``[{"threshold", "terms", "held_out"}]``: each distinct set of terms and its held-out error."""
+
+    @property
+    def equations(self) -> list[str]:
+        """Each coordinate's equation, e.g. ``q0'' = -9.81 - 0.31 q0'``."""
+        return [equation(i, self.terms, row) for i, row in enumerate(self.coefficients)]
+
+    def acceleration(self, q, v) -> Array:
+        """[..., n] ``q''`` at the states ``q``, ``v`` [..., n]."""
+        return evaluate(self.terms, np.asarray(q, float), np.asarray(v, float)) @ self.coefficients.T
+
+    def linearised(self, q=None, eps: float = 1e-6) -> tuple[Array, Array]:
+        """``(K, C)`` [n, n]: ``d q'' / d q`` and ``d q'' / d q'`` at rest at ``q`` (zeros unless given),
+        the stiffness and damping matrices of the linearised system (central differences; ``sign q'``
+        left out: it has no derivative at rest)."""
+        n = len(self.coefficients)
+        smooth = self.coefficients * np.array([kind != "sign" for kind, _ in self.terms])
+        x, zero, step = np.zeros(n) if q is None else np.asarray(q, float), np.zeros((n, n)), eps * np.eye(n)
+
+        def f(q, v):
+            return evaluate(self.terms, q, v) @ smooth.T
+
+        k = (f(x + step, zero) - f(x - step, zero)) / (2 * eps)
+        c = (f(x + zero, step) - f(x + zero, -step)) / (2 * eps)
+        return k.T, c.T
+
+    def rollout(self, t, q=None, v=None, t_start: float | None = None) -> tuple[Array, Array]:
+        """``(q, v)`` [T, n] at the increasing times ``t`` [T] (>= the start) of the state ``q``, ``v`` [n]
+        at ``t_start`` (the state at the end of the observed span unless given), by RK4 steps of at
+        most ``dt_max``, bouncing on the contacts."""
+        t = np.asarray(t, dtype=np.float64).reshape(-1)
+        t_start = self.t_end if t_start is None else float(t_start)
+        q = self.q_end if q is None else np.asarray(q, float)
+        v = self.v_end if v is None else np.asarray(v, float)
+        if len(t) and (t.min() < t_start - 1e-12 or np.any(np.diff(t) < 0)):
+            raise ValueError(f"rollout times must increase from the start {t_start}")
+        path, speed = integrate(
+            self.terms, self.coefficients[None], q[None], v[None], t - t_start, self.dt_max, self.contacts
+        )
+        return path[0], speed[0]
+
+    def to_dict(self) -> dict:
+        """The model as plain JSON-able values (``from_dict`` reads it back)."""
+        return {
+            "equations": self.equations,
+            "terms": [[kind, i] for kind, i in self.terms],
+            "coefficients": self.coefficients.tolist(),
+            "angular": list(self.angular),
+            "t_end": self.t_end,
+            "q_end": self.q_end.tolist(),
+            "v_end": self.v_end.tolist(),
+            "contacts": [vars(c) for c in self.contacts],
+            "events": [e.to_dict() for e in self.events],
+            "threshold": self.threshold,
+            "held_out": dict(self.held_out),
+            "residual": _finite(self.residual),
+            "adopted": self.adopted,
+            "why": self.why,
+            "dt_max": self.dt_max,
+            "tried": list(self.tried),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> IdentifiedModel:
+        return cls(
+            [(str(kind), int(i)) for kind, i in d["terms"]],
+            np.asarray(d["coefficients"], dtype=np.float64).reshape(len(d["q_end"]), len(d["terms"])),
+            tuple(bool(a) for a in d["angular"]),
+            float(d["t_end"]),
+            np.asarray(d["q_end"], dtype=np.float64),
+            np.asarray(d["v_end"], dtype=np.float64),
+            tuple(Contact(**c) for c in d["contacts"]),
+            tuple(Event.from_dict(e) for e in d["events"]),
+            float(d["threshold"]),
+            dict(d["held_out"]),
+            math.inf if d["residual"] is None else float(d["residual"]),
+            bool(d["adopted"]),
+            str(d["why"]),
+            float(d["dt_max"]),
+            list(d["tried"]),
+        )
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def _rms(a: Array, b: Array) -> float:
+    error = float(np.sqrt(np.mean((a - b) ** 2)))
+    return error if math.isfinite(error) else math.inf
+
+
+def contacts_of(events: list[Event], q: Array) -> tuple[Contact, ...]:
+    """The contacts the ``events`` that reverse a velocity component show: one per coordinate and
+    direction, its position and restitution the mean of its events' within 5% of the coordinate's
+    range of ``q`` [T, n] (a floor hit again); a far one is another contact."""
+    found: list[list] = []
+    for e in events:
+        for i, r in enumerate(e.restitution):
+            if r is None:
+                continue
+            d, x = int(np.sign(e.v_before[i])), e.position[i]
+            near = 0.05 * (float(np.ptp(q[:, i])) + 1e-300)
+            match = next(
+                (c for c in found if c[0] == i and c[1] == d and abs(np.mean(c[2]) - x) <= near), None
+            )
+            if match is None:
+                found.append([i, d, [x], [r]])
+            else:
+                match[2].append(x)
+                match[3].append(r)
+    return tuple(Contact(i, float(np.mean(x)), d, float(np.mean(r))) for i, d, x, r in found)
+
+
+def _derivatives(t: Array, q: Array) -> tuple[Array, Array, Array]:
+    """``(q, q', q'')`` [T, n] of a smoothing spline per coordinate (smoothness by generalised
+    cross-validation)."""
+    from scipy.interpolate import make_smoothing_spline
+
+    splines = [make_smoothing_spline(t, q[:, i]) for i in range(q.shape[1])]
+    return tuple(np.stack([s(t, k) for s in splines], 1) for k in range(3))
+
+
+class _Path:
+    """A path's pieces between events, each with its smoothed derivatives, up to a sample ``stop``."""
+
+    def __init__(self, t: Array, q: Array, events: list[Event], stop: int):
+        self.t, self.q = t, q
+        self.pieces = []
+        for start, end in segments(len(t), events):
+            end = min(end, stop)
+            if end - start >= MIN_PIECE:
+                smooth = _derivatives(t[start:end], q[start:end]) if end - start >= MIN_REGRESSION else None
+                self.pieces.append((start, end, smooth))
+        self.contacts = contacts_of([e for e in events if e.after < stop], q[:stop])
+
+    def regression(self, terms: list[Term]) -> tuple[Array, Array]:
+        """``(theta [T, F], q'' [T, n])`` over the pieces long enough to smooth."""
+        rows = [(evaluate(terms, s[0], s[1]), s[2]) for _, _, s in self.pieces if s is not None]
+        if not rows:
+            raise ValueError("no piece between the events is long enough to fit")
+        return np.concatenate([r[0] for r in rows]), np.concatenate([r[1] for r in rows])
+
+    def fit(self, terms: list[Term], xi: Array, dt_max: float, states=None):
+        """``(xi, states, rms)`` of ``shoot`` over the pieces, from ``xi`` [n, F] (its non-zeros fitted)
+        and the pieces' ``states`` (from their smoothed derivatives unless given)."""
+        pieces = []
+        for k, (start, end, smooth) in enumerate(self.pieces):
+            t, q = self.t[start:end], self.q[start:end]
+            if states is not None:
+                q0, v0 = states[k]
+            elif smooth is not None:
+                q0, v0 = smooth[0][0], smooth[1][0]
+            else:
+                q0, v0 = q[0], (q[1] - q[0]) / (t[1] - t[0])
+            pieces.append((t, q, q0, v0))
+        return shoot(terms, xi, xi != 0, pieces, dt_max)
+
+    def rollout(self, terms: list[Term], xi: Array, state: tuple[Array, Array], times: Array, dt_max: float):
+        """``(q, v)`` [T, n] at ``times`` from the last piece's fitted ``state``, bouncing on the contacts."""
+        start = self.t[self.pieces[-1][0]]
+        path, speed = integrate(
+            terms, xi[None], state[0][None], state[1][None], times - start, dt_max, self.contacts
+        )
+        return path[0], speed[0]
+
+
+class _Fits:
+    """The shooting fits of sets of terms over a path's pieces, each set fitted once."""
+
+    def __init__(self, path: _Path, terms: list[Term], dt_max: float):
+        self.path, self.terms, self.dt_max, self.done = path, terms, dt_max, {}
+        self.theta, self.target = path.regression(terms)
+        self.kept = independent_terms(self.theta)
+        self.scale = np.sqrt(np.mean(self.theta**2, 0))
+        self.target_scale = np.sqrt(np.mean(self.target**2, 0)) + 1e-300
+
+    def __call__(self, active: Array, start=None):
+        """``(xi, states, rms)`` of the terms ``active`` [n, F] bool, shot from ``start`` (a fit of more
+        terms) or from least squares on the smoothed derivatives."""
+        key = active.tobytes()
+        if key not in self.done:
+            if start is not None:
+                xi, states = np.where(active, start[0], 0.0), start[1]
+            else:
+                xi, states = np.zeros(active.shape), None
+                for i in range(len(active)):
+                    if active[i].any():
+                        xi[i, active[i]] = np.linalg.lstsq(
+                            self.theta[:, active[i]], self.target[:, i], rcond=None
+                        )[0]
+            xi[active & (xi == 0)] = 1e-12  # (an exact zero would leave the fitted terms)
+            self.done[key] = self.path.fit(self.terms, xi, self.dt_max, states)
+        return self.done[key]
+
+    def _weakest(self, active: Array, significance: Array, significant: float) -> tuple[int, int]:
+        """The term to drop next: of the active terms [n, F] not ``significant``, the most complex kind
+        (latest in ``TERM_KINDS``), else the least significant."""
+        complexity = np.array([TERM_KINDS.index(kind) for kind, _ in self.terms], dtype=float)
+        doubtful = active & (significance < significant)
+        if doubtful.any():
+            rank = np.where(doubtful, complexity[None] - significance / (significant + 1.0), -np.inf)
+            return np.unravel_index(np.argmax(rank), active.shape)
+        return np.unravel_index(np.argmin(np.where(active, significance, np.inf)), active.shape)
+
+    def backward(self, threshold: float, growth: float, significant: float = 25.0):
+        """The nested sets of terms ``[(active, dropped, (xi, states, rms, significance))]``: from those
+        PySINDy's ``STLSQ`` keeps at ``threshold`` (the smallest RMS share of a coordinate's acceleration
+        a term may explain) on the smoothed derivatives, each next one without its least significant
+        shot coefficient (``dropped``: that term's name), refitted, until the residual grows past
+        ``growth`` times the first's; among the terms below ``significant`` (a Wald statistic: 25 is
+        five standard deviations) the most complex kind goes first. One term at a time by
+        significance, not all below a threshold at once: terms that the samples can barely tell apart
+        (``q'``, ``sign q'`` and ``q'|q'|`` over a short span) trade their coefficients, so their large
+        shares say nothing; their significance is low, the simplest of them stays, and the refit after
+        each drop hands it the share of those dropped."""
+        active = np.zeros((len(self.target_scale), len(self.terms)), dtype=bool)
+        active[:, self.kept] = stlsq(self.theta[:, self.kept], self.target, threshold) != 0
+        fit, dropped = self(active), ""
+        floor = growth * fit[2] + 1e-6 * float(np.ptp(self.path.q))
+        found = []
+        while active.any():
+            found.append((active, dropped, fit))
+            weakest = self._weakest(active, fit[3], significant)
+            active = active.copy()
+            active[weakest] = False
+            dropped = f"{term_name(self.terms[weakest[1]])} in q{weakest[0]}''"
+            if not active.any():
+                break
+            fit = self(active, fit)
+            if not fit[2] <= floor:
+                break
+        return found
+
+
+def hold_velocity(t: Array, q: Array, n_fit: int, samples: int = 4) -> Array:
+    """[H, n] no physics' prediction of the held-out end: moving on at the last velocity, a line fitted
+    to the last ``samples`` fitted samples."""
+    k = min(samples, n_fit)
+    coef = np.polyfit(t[n_fit - k : n_fit], q[n_fit - k : n_fit], 1)
+    return t[n_fit:, None] * coef[0] + coef[1]
+
+
+def identify(
+    t,
+    q,
+    baseline=None,
+    angular=None,
+    holdout_fraction: float = 0.25,
+    margin: float = 0.8,
+    consistency: float = 0.05,
+    tie: float = 0.05,
+    threshold: float = 1e-3,
+    growth: float = 20.0,
+    friction: bool = True,
+    drag: bool = True,
+    detect: bool = True,
+) -> IdentifiedModel:
+    """The model of the path ``q`` [T, n] (or [T]) at the increasing times ``t`` [T] (module
+    docstring). ``baseline`` [H, n]: the prediction to beat on the held-out end (its rows the samples
+    from ``holdout_split(T, holdout_fraction)`` on); ``angular`` [n]: which coordinates are angles (none
+    unless given); ``detect``: split the path at its velocity jumps."""
+    t = np.asarray(t, dtype=np.float64).reshape(-1)
+    q = np.asarray(q, dtype=np.float64).reshape(len(t), -1)
+    n = q.shape[1]
+    if np.any(np.diff(t) <= 0) or not np.isfinite(q).all():
+        raise ValueError("the path's times must increase and its samples be finite")
+    n_fit = holdout_split(len(t), holdout_fraction)
+    angular = tuple(bool(a) for a in angular) if angular is not None else (False,) * n
+    baseline = hold_velocity(t, q, n_fit) if baseline is None else np.asarray(baseline, float).reshape(-1, n)
+    if len(baseline) != len(t) - n_fit:
+        raise ValueError(f"the baseline has {len(baseline)} rows, the held-out end {len(t) - n_fit}")
+    terms = library_terms(n, angular, friction, drag)
+    events = detect_events(t, q) if detect else []
+    dt_max = 0.5 * float(np.min(np.diff(t)))
+    empty = IdentifiedModel(terms, np.zeros((n, len(terms))), angular, float(t[-1]), q[-1], 0 * q[-1])
+    empty.events, empty.dt_max = tuple(events), dt_max
+    held = _Path(t, q, events, n_fit)
+    if all(s is None for _, _, s in held.pieces):
+        return _verdict(empty, False, "too few samples between the velocity jumps to fit a model")
+
+    # the nested sets of terms on the fitted samples, each scored on the held-out end
+    baseline_rms, scored = _rms(baseline, q[n_fit:]), []
+    for active, dropped, (xi, states, *_) in _Fits(held, terms, dt_max).backward(threshold, growth):
+        error = _rms(held.rollout(terms, xi, states[-1], t[n_fit:], dt_max)[0], q[n_fit:])
+        scored.append((active, dropped, int(active.sum()), error))
+    tried = [{"dropped": d, "terms": k, "held_out": _finite(e)} for _, d, k, e in scored]
+    if not scored:
+        return _verdict(empty, False, "the regression kept no term")
+    best = min(e for *_, e in scored)
+    good = best * (1 + tie) + 1e-6 * float(np.ptp(q))
+    active, _, _, error = min((v for v in scored if v[3] <= good), key=lambda v: (v[2], v[3]))
+
+    # the chosen terms refitted on the whole span
+    whole = _Path(t, q, events, len(t))
+    xi, states, rms, _ = _Fits(whole, terms, dt_max)(active)
+    fitted = np.concatenate([np.arange(a, b) for a, b, _ in whole.pieces])
+    motion = float(np.sqrt(np.mean((q[fitted] - q[fitted].mean(0)) ** 2))) + 1e-300
+    end_q, end_v = whole.rollout(terms, xi, states[-1], t[-1:], dt_max)
+    model = IdentifiedModel(
+        terms, xi, angular, float(t[-1]), end_q[-1], end_v[-1], whole.contacts, tuple(events), threshold
+    )
+    model.held_out = {"samples": len(t) - n_fit, "model": _finite(error), "baseline": _finite(baseline_rms)}
+    model.residual, model.dt_max, model.tried = rms / motion, dt_max, tried
+    if not math.isfinite(error) or not np.isfinite(xi).all():
+        return _verdict(model, False, "its rollout over the held-out end blows up")
+    if not error < margin * baseline_rms:
+        why = f"its held-out error {error:.3g} is not below {margin} times the baseline's {baseline_rms:.3g}"
+        return _verdict(model, False, why)
+    if not model.residual <= consistency:
+        why = f"its residual over the fitted span is {model.residual:.3g} of the path's motion (over {consistency})"
+        return _verdict(model, False, why)
+    return _verdict(model, True, f"held-out error {error:.3g} against the baseline's {baseline_rms:.3g}")
+
+
+def _verdict(model: IdentifiedModel, adopted: bool, why: str) -> IdentifiedModel:
+    model.adopted, model.why = adopted, ("adopted: " if adopted else "not adopted: ") + why
+    return model
