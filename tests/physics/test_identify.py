@@ -42,7 +42,10 @@ def test_coupled_damped_oscillator(noise):
     assert _relative(-stiffness, k) < 0.01
     assert _relative(-friction, c) < 0.02
     # the sparse model has the true terms only: springs and damping, no constant, friction or drag
-    assert {kind for kind, _ in (model.terms[f] for f in np.flatnonzero(model.coefficients.any(0)))} == {"q", "v"}
+    assert {kind for kind, _ in (model.terms[f] for f in np.flatnonzero(model.coefficients.any(0)))} == {
+        "q",
+        "v",
+    }
 
 
 def _double_pendulum(state, g=9.81, l1=1.0, l2=0.7, m1=1.0, m2=0.5):
@@ -63,11 +66,15 @@ def _double_pendulum(state, g=9.81, l1=1.0, l2=0.7, m1=1.0, m2=0.5):
     return [va, vb, aa, bb]
 
 
-def test_double_pendulum_linear_regime():
+@pytest.mark.parametrize("noise", [0.0, 1e-3])
+def test_double_pendulum_linear_regime(noise):
     g, l1, l2, m1, m2 = 9.81, 1.0, 0.7, 1.0, 0.5
     t = np.arange(75) / FPS
-    sol = solve_ivp(lambda _, x: _double_pendulum(x), (0, t[-1]), [0.02, -0.03, 0, 0], t_eval=t, rtol=1e-12, atol=1e-14)
-    model = identify(t, sol.y[:2].T, angular=(True, True))
+    sol = solve_ivp(
+        lambda _, x: _double_pendulum(x), (0, t[-1]), [0.02, -0.03, 0, 0], t_eval=t, rtol=1e-12, atol=1e-14
+    )
+    q = sol.y[:2].T + noise * 0.03 * np.random.default_rng(5).standard_normal((len(t), 2))
+    model = identify(t, q, angular=(True, True))
     # the linearised system q'' = -M^-1 G q: M the mass matrix at rest, G the gravity's stiffness
     m = np.array([[(m1 + m2) * l1**2, m2 * l1 * l2], [m2 * l1 * l2, m2 * l2**2]])
     truth = np.linalg.solve(m, np.diag([(m1 + m2) * g * l1, m2 * g * l2]))
@@ -78,7 +85,12 @@ def test_double_pendulum_linear_regime():
 def test_pendulum_large_amplitude_chooses_sine():
     t = np.arange(60) / FPS
     sol = solve_ivp(
-        lambda _, x: [x[1], -12.0 * np.sin(x[0]) - 0.3 * x[1]], (0, t[-1]), [2.0, 0.0], t_eval=t, rtol=1e-12, atol=1e-14
+        lambda _, x: [x[1], -12.0 * np.sin(x[0]) - 0.3 * x[1]],
+        (0, t[-1]),
+        [2.0, 0.0],
+        t_eval=t,
+        rtol=1e-12,
+        atol=1e-14,
     )
     model = identify(t, sol.y[0], angular=(True,))
     terms = [model.terms[f] for f in np.flatnonzero(model.coefficients[0])]

@@ -22,6 +22,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.ndimage import median_filter
 
+from .sindy import Contact
+
 Array = np.ndarray
 
 WINDOW = 6
@@ -147,3 +149,25 @@ def segments(n_samples: int, events: list[Event]) -> list[tuple[int, int]]:
     bounds = [0] + [e.after for e in events] + [n_samples]
     stops = [e.before + 1 for e in events] + [n_samples]
     return [(bounds[k], stops[k]) for k in range(len(bounds) - 1)]
+
+
+def contacts_of(events: list[Event], q: Array) -> tuple[Contact, ...]:
+    """The contacts the ``events`` that reverse a velocity component show: one per coordinate and
+    direction, its position and restitution the mean of its events' within 5% of the coordinate's
+    range of ``q`` [T, n] (a floor hit again); a far one is another contact."""
+    found: list[list] = []
+    for e in events:
+        for i, r in enumerate(e.restitution):
+            if r is None:
+                continue
+            d, x = int(np.sign(e.v_before[i])), e.position[i]
+            near = 0.05 * (float(np.ptp(q[:, i])) + 1e-300)
+            match = next(
+                (c for c in found if c[0] == i and c[1] == d and abs(np.mean(c[2]) - x) <= near), None
+            )
+            if match is None:
+                found.append([i, d, [x], [r]])
+            else:
+                match[2].append(x)
+                match[3].append(r)
+    return tuple(Contact(i, float(np.mean(x)), d, float(np.mean(r))) for i, d, x, r in found)

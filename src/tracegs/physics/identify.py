@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .events import Event, detect_events, segments
+from .events import Event, contacts_of, detect_events, segments
 from .sindy import (
     TERM_KINDS,
     Contact,
@@ -47,6 +47,7 @@ from .sindy import (
     integrate,
     library_terms,
     shoot,
+    smoothed_derivatives,
     stlsq,
     term_name,
 )
@@ -185,37 +186,6 @@ def _rms(a: Array, b: Array) -> float:
     return error if math.isfinite(error) else math.inf
 
 
-def contacts_of(events: list[Event], q: Array) -> tuple[Contact, ...]:
-    """The contacts the ``events`` that reverse a velocity component show: one per coordinate and
-    direction, its position and restitution the mean of its events' within 5% of the coordinate's
-    range of ``q`` [T, n] (a floor hit again); a far one is another contact."""
-    found: list[list] = []
-    for e in events:
-        for i, r in enumerate(e.restitution):
-            if r is None:
-                continue
-            d, x = int(np.sign(e.v_before[i])), e.position[i]
-            near = 0.05 * (float(np.ptp(q[:, i])) + 1e-300)
-            match = next(
-                (c for c in found if c[0] == i and c[1] == d and abs(np.mean(c[2]) - x) <= near), None
-            )
-            if match is None:
-                found.append([i, d, [x], [r]])
-            else:
-                match[2].append(x)
-                match[3].append(r)
-    return tuple(Contact(i, float(np.mean(x)), d, float(np.mean(r))) for i, d, x, r in found)
-
-
-def _derivatives(t: Array, q: Array) -> tuple[Array, Array, Array]:
-    """``(q, q', q'')`` [T, n] of a smoothing spline per coordinate (smoothness by generalised
-    cross-validation)."""
-    from scipy.interpolate import make_smoothing_spline
-
-    splines = [make_smoothing_spline(t, q[:, i]) for i in range(q.shape[1])]
-    return tuple(np.stack([s(t, k) for s in splines], 1) for k in range(3))
-
-
 class _Path:
     """A path's pieces between events, each with its smoothed derivatives, up to a sample ``stop``."""
 
@@ -225,7 +195,11 @@ class _Path:
         for start, end in segments(len(t), events):
             end = min(end, stop)
             if end - start >= MIN_PIECE:
-                smooth = _derivatives(t[start:end], q[start:end]) if end - start >= MIN_REGRESSION else None
+                smooth = (
+                    smoothed_derivatives(t[start:end], q[start:end])
+                    if end - start >= MIN_REGRESSION
+                    else None
+                )
                 self.pieces.append((start, end, smooth))
         self.contacts = contacts_of([e for e in events if e.after < stop], q[:stop])
 

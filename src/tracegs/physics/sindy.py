@@ -91,6 +91,15 @@ def equation(i: int, terms: list[Term], row: Array) -> str:
     return f"q{i}'' = " + (" ".join(parts) if parts else "0")
 
 
+def smoothed_derivatives(t: Array, q: Array) -> tuple[Array, Array, Array]:
+    """``(q, q', q'')`` [T, n] of a smoothing spline per coordinate (smoothness by generalised
+    cross-validation)."""
+    from scipy.interpolate import make_smoothing_spline
+
+    splines = [make_smoothing_spline(t, q[:, i]) for i in range(q.shape[1])]
+    return tuple(np.stack([s(t, k) for s in splines], 1) for k in range(3))
+
+
 def independent_terms(theta: Array, tol: float = 1e-3) -> Array:
     """[F] bool: the columns of ``theta`` [T, F] kept in order while each adds a direction of relative
     size above ``tol`` to those kept before it. Terms the samples cannot tell apart (``sin q`` from ``q``
