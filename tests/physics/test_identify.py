@@ -143,16 +143,19 @@ def test_bounce_event_and_restitution(noise):
     assert np.abs(model.rollout(later)[0][:, 0] - truth).max() < 0.03
 
 
-def test_jerky_path_not_adopted():
+@pytest.mark.parametrize("kind", ["jerky", "random_walk"])
+def test_path_that_fits_no_model_is_not_adopted(kind):
     rng = np.random.default_rng(3)
     t = np.arange(60) / FPS
-    # a random walk of the acceleration, held for a few frames at a time
-    a = np.repeat(rng.normal(0, 20.0, (12, 2)), 5, axis=0)
-    v = np.cumsum(a, 0) / FPS
-    q = np.cumsum(v, 0) / FPS
+    if kind == "jerky":  # an acceleration drawn at random, held for five frames at a time
+        a = np.repeat(rng.normal(0, 20.0, (12, 2)), 5, axis=0)
+        q = np.cumsum(np.cumsum(a, 0) / FPS, 0) / FPS
+    else:
+        q = np.cumsum(rng.normal(0, 0.01, (60, 1)), 0)
     model = identify(t, q)
     assert not model.adopted
     assert model.why.startswith("not adopted: ")
+    assert "held-out error" in model.why or "residual" in model.why
 
 
 def test_learned_baseline_decides():
