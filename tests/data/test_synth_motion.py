@@ -246,7 +246,7 @@ def test_the_five_constant_force_scenes_keep_their_records():
             assert isinstance(part.motion, RigidMotion) and list(record) == keys, scene
     blades = _records("fan")[1]
     assert (blades["type"], blades["angular_velocity"], blades["axis"]) == ("rotation", 2.0, [0.0, 0.0, 1.0])
-    assert list(SCENES)[:5] == list(OLD_SCENES) and list(SCENES)[5:] == list(NEW_SCENES)
+    assert list(SCENES)[:5] == list(OLD_SCENES) and list(SCENES)[5:10] == list(NEW_SCENES)
 
 
 def test_every_new_scene_has_a_static_part_and_identity_at_rest():

@@ -153,6 +153,27 @@ def sphere(radius: float, rings: int = 24, segments: int = 48) -> Mesh:
     return _drop_unused(mesh)
 
 
+def lathe(profile, segments: int = 48) -> Mesh:
+    """The surface swept by turning the curve ``profile`` [K, 2] of (radius, z) points about z (a bowl,
+    a vase): u = angle / 2pi, v = the point's index / (K - 1). Triangles on the axis (radius 0) are
+    left out, as at the poles of :func:`sphere`."""
+    profile = np.asarray(profile, dtype=np.float64)
+    ang = np.linspace(0.0, 2 * np.pi, segments + 1)
+    r, z = profile[:, 0, None], profile[:, 1, None]
+    v = np.stack([r * np.cos(ang), r * np.sin(ang), np.broadcast_to(z, r.shape[:1] + ang.shape)], -1)
+    vv = np.broadcast_to(np.linspace(0.0, 1.0, len(profile))[:, None], r.shape[:1] + ang.shape)
+    uv = np.stack([np.broadcast_to(ang / (2 * np.pi), vv.shape), vv], -1)
+    w, faces = segments + 1, []
+    for i in range(len(profile) - 1):
+        for j in range(segments):
+            a, b, c, d = i * w + j, i * w + j + 1, (i + 1) * w + j, (i + 1) * w + j + 1
+            if profile[i, 0] > 0:
+                faces.append([a, b, c])
+            if profile[i + 1, 0] > 0:
+                faces.append([b, d, c])
+    return _drop_unused(make_mesh(v.reshape(-1, 3), uv.reshape(-1, 2), faces))
+
+
 def _drop_unused(mesh: Mesh) -> Mesh:
     """Remove vertices no triangle uses (Mitsuba warns about their undefined normals)."""
     used = np.unique(mesh.faces)

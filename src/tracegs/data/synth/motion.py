@@ -11,7 +11,8 @@ The rotation is about a line through ``pivot`` fixed in the part, which the tran
 along (a door on a drifting satellite, a ball spinning about its own moving centre).
 
 Parts under forces that are not constant (a pendulum, a spring, a friction stop, a bounce, a part
-carried by another) move by the closed forms of :mod:`.varying`; every motion follows the
+carried by another) move by the closed forms of :mod:`.varying`, parts with several coupled degrees
+of freedom by the integrated motions of :mod:`.mechanisms` and the impact of :mod:`.impacts`; every motion follows the
 :class:`~.kinematics.Motion` protocol (``transform``, ``angular_velocity_at``, ``record``) and
 :func:`motion_from_record` reads any of them back from ``gt/motion.json``.
 
@@ -26,10 +27,19 @@ from pathlib import Path
 
 import numpy as np
 
+from . import impacts, mechanisms
 from .kinematics import Motion, axis_angle_to_matrix, from_fields, plain, rigid_transform, unit
-from .varying import CLOSED_FORMS, Carried
+from .varying import CLOSED_FORMS, FORMULAS, Carried
 
 FORMULA = "theta(t) = w*t + alpha*t^2/2; x(t) = R(axis, theta(t)) (x0 - pivot) + pivot + v*t + a*t^2/2"
+MOTION_TYPES = {
+    **CLOSED_FORMS,
+    **mechanisms.INTEGRATED,
+    impacts.SlidingCollision.kind: impacts.SlidingCollision,
+}
+"""Record ``type`` -> the dataclass whose fields the record holds (``carried`` nests two records)."""
+EQUATIONS = {**FORMULAS, **mechanisms.FORMULAS, **impacts.FORMULAS}
+"""Motion type -> its closed form or equations of motion, as ``gt/motion.json`` states them."""
 
 
 @dataclass(frozen=True)
@@ -111,8 +121,8 @@ def motion_from_record(record: dict) -> Motion:
     if kind == Carried.kind:
         parent, child = motion_from_record(record["parent"]), motion_from_record(record["child"])
         return Carried(parent, child, record.get("parent_part"))
-    if kind in CLOSED_FORMS:
-        return from_fields(CLOSED_FORMS[kind], record)
+    if kind in MOTION_TYPES:
+        return from_fields(MOTION_TYPES[kind], record)
     return from_fields(RigidMotion, record, kind=kind)
 
 

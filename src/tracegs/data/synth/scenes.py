@@ -17,6 +17,7 @@ from . import geometry as g
 from . import textures as tx
 from .motion import RigidMotion
 from .parts import TEXTURE_SIZE, Part, Piece, SceneSpec, place, rot, scene_rng
+from .scenes_coupled import collision, doublependulum, gyroscope, planarsprings, rolling
 from .scenes_varying import bounce, brake, pendulum, spring, turntable
 
 
@@ -258,6 +259,11 @@ SCENES: dict[str, Callable[[], SceneSpec]] = {
     "brake": brake,
     "bounce": bounce,
     "turntable": turntable,
+    "rolling": rolling,
+    "gyroscope": gyroscope,
+    "doublependulum": doublependulum,
+    "planarsprings": planarsprings,
+    "collision": collision,
 }
 """Scene name -> builder of its :class:`SceneSpec`."""
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from . import geometry as g
 from .cameras import Rig, Split, default_train_frames, default_val_views, make_rig, make_split
-from .motion import FORMULA, motion_record, transforms_at
+from .motion import EQUATIONS, FORMULA, motion_record, transforms_at
 from .render import (
     Lighting,
     build_scene,
@@ -42,7 +42,6 @@ from .render import (
     to_srgb8,
 )
 from .scenes import SceneSpec, get_scene
-from .varying import FORMULAS
 
 EXTRAPOLATION_HORIZON = 1.5
 """Bounds and camera framing cover the object for all t in [0, EXTRAPOLATION_HORIZON]."""
@@ -282,8 +281,8 @@ def _formulas(records: list[dict]) -> dict:
     for record in records:
         nested = [record.get(key) for key in ("parent", "child")]
         found |= _formulas([r for r in nested if r is not None])
-        if record["type"] in FORMULAS:
-            found[record["type"]] = FORMULAS[record["type"]]
+        if record["type"] in EQUATIONS:
+            found[record["type"]] = EQUATIONS[record["type"]]
     return found
 
 
