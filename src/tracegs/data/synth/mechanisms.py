@@ -146,9 +146,10 @@ class Gyroscope:
     axial_inertia: float = 0.03
     """I3: about the symmetry axis, per unit mass."""
     spin: float = 10.0
-    """w . a at t = 0: the spin about the symmetry axis (conserved)."""
+    """w . a: the spin about the symmetry axis (conserved)."""
     precession_rate: float = 0.0
-    """The angular velocity about +z at t = 0, besides the spin."""
+    """The rate at which the axis turns about +z at t = 0 (the angular velocity's part across the
+    axis is this rate times the part of +z across the axis)."""
     gravity: float = 9.81
     kind = "gyroscope"
 
@@ -159,7 +160,10 @@ class Gyroscope:
 
     def initial_state(self) -> np.ndarray:
         a = _vec(self.axis)
-        omega = self.spin * a + self.precession_rate * np.array([0.0, 0.0, 1.0])
+        up = np.array([0.0, 0.0, 1.0])
+        omega = self.spin * a + self.precession_rate * (
+            up - (up @ a) * a
+        )  # the axis turns about z at this rate
         return np.concatenate([self._momentum(omega, a), [1.0, 0.0, 0.0, 0.0]])
 
     def _momentum(self, omega: np.ndarray, a: np.ndarray) -> np.ndarray:

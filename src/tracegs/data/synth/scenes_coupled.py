@@ -39,7 +39,7 @@ def rolling() -> SceneSpec:
     """A small ball (radius 0.08) rolling without slipping in a spherical bowl (radius 0.9), released
     off-centre with a sideways push: its centre swings round the bottom on a precessing ellipse."""
     r = lambda k: scene_rng("rolling", k)  # noqa: E731
-    center, radius, ball_radius, g_ = (0.0, 0.0, 0.45), 0.9, 0.08, 46.0
+    center, radius, ball_radius, g_ = (0.0, 0.0, 0.45), 0.9, 0.08, 29.0
     rim = np.radians(42)
     # a shell 0.03 thick, its profile outside up to the rim and inside back down: closed, facing out
     arc = np.linspace(0.0, rim, 16)
@@ -56,7 +56,7 @@ def rolling() -> SceneSpec:
         ),
         STATIC,
     )
-    rho, start = radius - ball_radius, np.radians(20)
+    rho, start = radius - ball_radius, np.radians(14)
     pivot = np.asarray(center) + rho * np.array([np.sin(start), 0.0, -np.cos(start)])
     colors = [(0.95, 0.35, 0.10), (0.15, 0.25, 0.75), (0.98, 0.95, 0.85), (0.15, 0.60, 0.30)]
     bands = tx.palette_bands(TEXTURE_SIZE, colors, along_u=True)
@@ -66,7 +66,7 @@ def rolling() -> SceneSpec:
         bowl_radius=radius,
         ball_radius=ball_radius,
         pivot=tuple(float(x) for x in pivot),
-        linear_velocity=(0.0, 0.9, 0.0),
+        linear_velocity=(0.0, 0.5, 0.0),
         normal_spin=0.0,
         gravity=g_,
     )
@@ -111,9 +111,9 @@ def gyroscope() -> SceneSpec:
         # a solid disc, the axle's mass neglected
         transverse_inertia=disc_radius**2 / 4 + thickness**2 / 12 + arm**2,
         axial_inertia=disc_radius**2 / 2,
-        spin=9.0,
-        precession_rate=0.8,
-        gravity=2.5,
+        spin=5.5,
+        precession_rate=0.6,
+        gravity=1.3,
     )
     return SceneSpec(
         "gyroscope",
@@ -183,8 +183,8 @@ def planarsprings() -> SceneSpec:
     attachments = tuple(tuple(center + disc_radius * np.array([np.cos(a), np.sin(a), 0.0])) for a in angles)
     motion = PlanarSprings(
         pivot=tuple(float(x) for x in center),
-        linear_velocity=(0.0, 0.6, 0.0),
-        angular_velocity=3.0,
+        linear_velocity=(0.0, 0.5, 0.0),
+        angular_velocity=2.0,
         anchors=anchors,
         attachments=attachments,
         stiffnesses=stiffness,
