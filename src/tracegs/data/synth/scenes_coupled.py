@@ -218,8 +218,8 @@ def planarsprings() -> SceneSpec:
 
 
 def collision() -> SceneSpec:
-    """A disc sliding on a table strikes a resting one off-centre at t = 0.315 (restitution 0.8); both
-    slide on under friction, at angles, and stop in the future span."""
+    """A disc sliding on a table strikes a resting one off-centre at t = 0.278 (restitution 0.8); both
+    slide on under friction, at angles, and stop at t = 1.29 and 1.73."""
     r = lambda k: scene_rng("collision", k)  # noqa: E731
     top, radius, height = -0.3, 0.14, 0.08
     z = top + height / 2
