@@ -45,7 +45,7 @@ import torch
 
 from ..data.frames import DatasetError, Frame
 from ..data.masks import foreground_path, read_id_mask
-from ..data.motion_masks import MotionMaskSettings, MotionMasks
+from ..data.motion_masks import MotionMasks, MotionMaskSettings
 from .metrics import SSIM_WINDOW, mae_psnr, ssim_map
 
 MOVING_DILATION = 3
