@@ -89,15 +89,23 @@ def calibrate_rig(
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
     image_names = [n for camera in names.values() for n in camera]
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.sift.estimate_affine_shape = True
+    extraction.sift.domain_size_pooling = True
+    extraction.num_threads = 2
     pycolmap.extract_features(
         database,
         image_root,
         image_names=image_names,
         camera_mode=pycolmap.CameraMode.PER_FOLDER,
         reader_options=reader,
+        extraction_options=extraction,
         device=pycolmap.Device.cpu,
     )
-    pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.guided_matching = True
+    matching.num_threads = 2
+    pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
     counts = _database_counts(database, names)
     options = pycolmap.IncrementalPipelineOptions()
     options.min_model_size = 2
