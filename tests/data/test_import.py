@@ -169,3 +169,32 @@ def test_an_existing_folder_is_not_overwritten(tmp_path):
     frames = _rig_folders(tmp_path / "rig", frames=2)
     with pytest.raises(FileExistsError, match="did not write"):
         import_scene(tmp_path / "scene", images=frames, calibration=tmp_path / "t.json")
+
+
+def test_the_command_writes_the_scene_and_says_a_bad_input_in_one_line(tmp_path, capsys):
+    from tracegs.cli import main
+
+    frames = _rig_folders(tmp_path / "rig", frames=3)
+    calibration = _nerfstudio(tmp_path / "t.json", _ring(3), ["cam0", "cam1", "cam2"], 32)
+    args = [
+        "import",
+        "--images",
+        str(frames),
+        "--calibration",
+        str(calibration),
+        "--out",
+        str(tmp_path / "s"),
+    ]
+    main([*args, "--val-cameras", "cam1", "--json", str(tmp_path / "r.json")])
+    out = capsys.readouterr().out
+    assert "3 cameras calibrated" in out and "train: 2 cameras, val: 1 camera" in out
+    assert json.loads((tmp_path / "r.json").read_text())["splits"]["val"] == ["cam1"]
+    (tmp_path / "rig" / "cam3").mkdir()
+    with pytest.raises(SystemExit) as exit_:
+        main(args)
+    err = capsys.readouterr().err.strip()
+    assert (
+        exit_.value.code == 1
+        and "\n" not in err
+        and err.endswith("cam3: no frames (PNG or JPEG files) in the camera's folder")
+    )

@@ -282,6 +282,6 @@ def format_report(report: dict) -> str:
         + (f", mean reprojection error {error:.2f} px" if error is not None else ""),
         *(f"dropped {name}: {why}" for name, why in report["dropped"].items()),
         *report["timing"]["reconciled"],
-        ", ".join(f"{split}: {len(names)} cameras" for split, names in report["splits"].items()),
+        ", ".join(f"{split}: {len(n)} camera{'s' * (len(n) != 1)}" for split, n in report["splits"].items()),
     ]
     return "\n".join(lines)

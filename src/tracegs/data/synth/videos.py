@@ -72,3 +72,22 @@ def imported_w2c(scene: Path) -> dict[str, np.ndarray]:
                 c2w[:3, 1:3] *= -1
                 poses[f["camera"]] = np.linalg.inv(c2w)
     return poses
+
+
+def closed_loop(scene: Path, work: Path, **import_args) -> dict:
+    """The closed loop on the ``tracegs synth`` folder ``scene`` (rendered with textured surroundings):
+    its cameras as videos under ``work/videos``, imported without their poses into ``work/imported``
+    (``import_scene`` with ``import_args``), the recovered cameras aligned to the true ones by a
+    similarity (``calibration.align_cameras``). Returns the alignment's errors and the import's report."""
+    from ..calibration import align_cameras
+    from ..importer import import_scene
+
+    work = Path(work)
+    write_rig_videos(Path(scene), work / "videos")
+    report = import_scene(
+        work / "imported", videos=work / "videos", **({"log": lambda s: None} | import_args)
+    )
+    truth, found = true_w2c(Path(scene)), imported_w2c(work / "imported")
+    names = sorted(found)
+    errors = align_cameras(np.stack([found[n] for n in names]), np.stack([truth[n] for n in names]))
+    return errors | {"cameras": len(truth), "registered": len(names), "report": report}
