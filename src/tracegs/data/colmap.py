@@ -6,7 +6,8 @@ bundle adjustment. Every camera's frames share one COLMAP camera (intrinsics and
 folder is its camera), so ``--calib-frames N`` adds views of a scene with little texture without
 adding unknowns. The mapper's thresholds are lowered from COLMAP's defaults (made for photo
 collections of thousands of features) to what a rig of a few small views gives: 15 inliers start a
-model, 12 register a camera. A camera none of whose frames is registered, or that lies in another
+model, 12 register a camera. The focal lengths and distortion are held at COLMAP's prior while the
+model grows and refined by a final bundle adjustment of every camera together. A camera none of whose frames is registered, or that lies in another
 model than the largest, is unregistered and named with what COLMAP had for it.
 
 Undistortion (``undistortion_map``, ``undistort``): the output camera is the pinhole part of the
@@ -110,10 +111,14 @@ def calibrate_rig(
     options = pycolmap.IncrementalPipelineOptions()
     options.min_model_size = 2
     options.min_num_matches = 10
-    options.mapper.init_min_num_inliers = 15
+    options.mapper.init_min_num_inliers = 30
     options.mapper.abs_pose_min_num_inliers = 12
-    options.mapper.init_min_tri_angle = 4.0
     options.random_seed = seed
+    # the focal lengths stay at COLMAP's prior (1.2 x the larger side) while the rig is assembled: with
+    # a few hundred points, a focal length per camera refined from the first views drifts (the
+    # focal-depth ambiguity) and the rig folds; the final bundle adjustment refines them all at once
+    options.ba_refine_focal_length = options.ba_refine_extra_params = False
+    options.mapper.abs_pose_refine_focal_length = options.mapper.abs_pose_refine_extra_params = False
     options.num_threads = 2
     sparse = work / "sparse"
     shutil.rmtree(sparse, ignore_errors=True)
@@ -122,6 +127,9 @@ def calibrate_rig(
     if not models:
         raise DatasetError(f"{image_root}: COLMAP made no model of the cameras ({_counts_text(counts)})")
     best_id, best = max(models.items(), key=lambda kv: kv[1].num_reg_images())
+    adjustment = pycolmap.BundleAdjustmentOptions()
+    adjustment.print_summary = False
+    pycolmap.bundle_adjustment(best, adjustment)
     best.write(sparse / str(best_id))  # the folder a later `--calibration` takes
     return _rig_fit(best, names, counts, models, sparse / str(best_id))
 
