@@ -1,14 +1,16 @@
 """Calibrating a static rig with COLMAP (``pycolmap``, on the CPU), and undistorting its images.
 
 ``calibrate_rig`` runs COLMAP's pipeline on a few frames of each camera taken while the rig stood
-still: SIFT features, exhaustive matching with geometric verification, incremental mapping with
-bundle adjustment. Every camera's frames share one COLMAP camera (intrinsics and distortion, its
-folder is its camera), so ``--calib-frames N`` adds views of a scene with little texture without
-adding unknowns. The mapper's thresholds are lowered from COLMAP's defaults (made for photo
-collections of thousands of features) to what a rig of a few small views gives: 15 inliers start a
-model, 12 register a camera. The focal lengths and distortion are held at COLMAP's prior while the
-model grows and refined by a final bundle adjustment of every camera together. A camera none of whose frames is registered, or that lies in another
-model than the largest, is unregistered and named with what COLMAP had for it.
+still: SIFT features (affine-adapted and domain-size pooled, which match across the wide baselines of a
+rig of few cameras), exhaustive matching with guided geometric verification, incremental mapping.
+Every camera's frames share one COLMAP camera (its folder is its camera), so ``--calib-frames N`` adds
+views of a scene with little texture without adding unknowns. The mapper's thresholds are lowered
+from COLMAP's defaults (made for photo collections of thousands of features) to what a rig of a few
+small views gives: 30 inliers start a model, 12 register a camera. The focal lengths and distortion
+are held at COLMAP's prior while the model grows, then refined by bundle adjustments of every camera
+together (a robust loss; the observations left more than 2 pixels off dropped between rounds). A
+camera none of whose frames is registered, or that lies in another model than the largest, is
+unregistered and named with what COLMAP had for it.
 
 Undistortion (``undistortion_map``, ``undistort``): the output camera is the pinhole part of the
 model (its focal lengths and principal point, the same size); each of its pixels takes the colour
@@ -127,11 +129,25 @@ def calibrate_rig(
     if not models:
         raise DatasetError(f"{image_root}: COLMAP made no model of the cameras ({_counts_text(counts)})")
     best_id, best = max(models.items(), key=lambda kv: kv[1].num_reg_images())
-    adjustment = pycolmap.BundleAdjustmentOptions()
-    adjustment.print_summary = False
-    pycolmap.bundle_adjustment(best, adjustment)
+    _refine(best)
     best.write(sparse / str(best_id))  # the folder a later `--calibration` takes
     return _rig_fit(best, names, counts, models, sparse / str(best_id))
+
+
+def _refine(model, rounds: int = 3) -> None:
+    """Bundle adjustment of every camera, its intrinsics included (robust loss), and the observations
+    it leaves more than 2 pixels off dropped, ``rounds`` times."""
+    import pycolmap
+
+    options = pycolmap.BundleAdjustmentOptions()
+    options.print_summary = False
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+    for _ in range(rounds):
+        pycolmap.bundle_adjustment(model, options)
+        if pycolmap.ObservationManager(model).filter_all_points3D(2.0, 1.5) == 0:
+            break
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.TRIVIAL
+    pycolmap.bundle_adjustment(model, options)
 
 
 def _database_counts(database: Path, names: dict[str, list[str]]) -> dict[str, dict]:
