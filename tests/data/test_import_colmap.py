@@ -1,6 +1,7 @@
 """The COLMAP path of ``tracegs import`` on a small synthetic rig, where the truth is known: a ``tracegs
 synth`` scene with textured surroundings as one MP4 per camera, plus a camera that films noise (which
-nothing ties to the rig), imported without poses; the recovered cameras aligned to the true ones.
+nothing ties to the rig), imported without poses; the recovered cameras aligned to the true ones. And
+what ``--textured-surroundings`` changes in a synthetic scene (the background only).
 
 The targets of the closed loop (1% of the rig's radius, 0.5 degrees) are for rigs of larger images
 (``benchmarks/import_closed_loop.py``); this rig of 320-pixel images is small enough for a test and held to 2% and 0.75 degrees.
@@ -8,6 +9,7 @@ The targets of the closed loop (1% of the rig's radius, 0.5 degrees) are for rig
 
 from __future__ import annotations
 
+import imageio.v3 as iio
 import numpy as np
 import pytest
 
@@ -71,3 +73,16 @@ def test_the_imported_scene_is_read_as_any_scene(imported):
     up = np.mean([-f.camera.viewmat[1, :3].numpy() for f in train.frames], axis=0)
     assert up[2] / np.linalg.norm(up) > 0.99
     assert (out / "colmap" / "sparse" / "0").is_dir() and not (out / "colmap" / "database.db").exists()
+
+
+def test_textured_surroundings_fill_the_background_and_leave_the_masks(tmp_path):
+    args = {"resolution": 24, "views": 2, "frames": 2, "progress": False, "spp": 1}
+    plain = synthesize("fan", tmp_path / "plain", **args)
+    room = synthesize("fan", tmp_path / "room", **args, textured_surroundings=True)
+    for image in sorted((plain / "train").glob("*.png")):
+        before, after = iio.imread(image), iio.imread(room / "train" / image.name)
+        assert before[..., 3].min() == 0 and after[..., 3].min() == 255  # the room fills what was empty
+        covered = before[..., 3] == 255
+        assert np.abs(after[covered].astype(int) - before[covered]).mean() < 20  # the object as it was
+        masks = [iio.imread(d / "gt" / "masks" / "train" / image.name) for d in (plain, room)]
+        assert np.array_equal(*masks)

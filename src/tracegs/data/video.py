@@ -185,8 +185,8 @@ def plan(
     lengths = {round(s.last_time, 3) for s in sources}
     if len(lengths) > 1:
         notes.append(
-            f"the recordings differ in length ({min(lengths):g} to {max(lengths):g} s after the offsets' cuts): "
-            f"the span all of them cover is used"
+            f"the recordings differ in length ({min(lengths):g} to {max(lengths):g} s): the span all of them "
+            "cover is used"
         )
     if last < first - 1e-9:
         raise DatasetError(
