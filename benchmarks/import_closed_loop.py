@@ -5,7 +5,7 @@ errors as a fraction of the rig's radius and the viewing-direction errors in deg
 targets (1% of the radius, 0.5 degrees).
 
 Usage: .venv/bin/python benchmarks/import_closed_loop.py [--scene fan] [--resolution 480] [--views 12]
-    [--frames 10] [--spp 8] [--camera-model SIMPLE_RADIAL] [--out runs/import_loop] [--json F]
+    [--frames 10] [--spp 8] [--camera-model SIMPLE_RADIAL] [--calib-frames 1] [--out runs/import_loop] [--json F]
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=10)
     parser.add_argument("--spp", type=int, default=8)
     parser.add_argument("--camera-model", default="SIMPLE_RADIAL")
+    parser.add_argument("--calib-frames", type=int, default=1)
     parser.add_argument("--out", type=Path, default=Path("runs/import_loop"))
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
@@ -48,7 +49,7 @@ def main() -> None:
     rendered = time.perf_counter()
     work = args.out / "loop"
     shutil.rmtree(work, ignore_errors=True)
-    result = closed_loop(scene, work, camera_model=args.camera_model)
+    result = closed_loop(scene, work, camera_model=args.camera_model, calib_frames=args.calib_frames)
     report = result.pop("report")
     row = {
         "scene": args.scene,
@@ -62,6 +63,7 @@ def main() -> None:
         "direction_error_max_deg": result["direction_error_max_deg"],
         "direction_error_mean_deg": result["direction_error_mean_deg"],
         "camera_model": args.camera_model,
+        "calib_frames": args.calib_frames,
         "undistortion": report["undistortion"],
         "render_s": round(rendered - started, 1),
         "import_s": round(time.perf_counter() - rendered, 1),

@@ -84,6 +84,17 @@ def calibrate_rig(
 
     if camera_model not in CAMERA_MODELS:
         raise ValueError(f"--camera-model {camera_model!r}: choose from {', '.join(CAMERA_MODELS)}")
+    level = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = 2  # COLMAP's errors only: the report says what it did
+    try:
+        return _calibrate(pycolmap, image_root, names, work, camera_model, seed)
+    finally:
+        pycolmap.logging.minloglevel = level
+
+
+def _calibrate(
+    pycolmap, image_root: Path, names: dict[str, list[str]], work: Path, camera_model: str, seed: int
+):
     work.mkdir(parents=True, exist_ok=True)
     database = work / "database.db"
     if database.exists():
