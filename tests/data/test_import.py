@@ -198,3 +198,23 @@ def test_the_command_writes_the_scene_and_says_a_bad_input_in_one_line(tmp_path,
         and "\n" not in err
         and err.endswith("cam3: no frames (PNG or JPEG files) in the camera's folder")
     )
+
+
+def test_a_dynamic_3d_gaussians_meta_and_a_rescaled_distorted_camera(tmp_path):
+    frames = _rig_folders(tmp_path / "rig", frames=2)
+    w2c = _ring(3)
+    K = [[[40.0, 0, 32], [0, 40.0, 32], [0, 0, 1]]] * 3
+    meta = {"w": 64, "h": 64, "k": [K], "w2c": [w2c.tolist()], "cam_id": [[0, 1, 2]]}
+    meta["fn"] = [[f"cam{c}/000000.jpg" for c in range(3)]]
+    (tmp_path / "train_meta.json").write_text(json.dumps(meta))
+    report = import_scene(
+        tmp_path / "a", images=frames, calibration=tmp_path / "train_meta.json", log=lambda s: None
+    )
+    scene = load_scene(tmp_path / "a", "train")
+    assert report["registered"] == ["cam0", "cam1", "cam2"]
+    assert np.allclose(scene.frames[1].camera.viewmat.numpy(), w2c[1], atol=1e-5)
+    assert np.allclose(scene.frames[1].camera.K.numpy()[:2, :3], [[20, 0, 16], [0, 20, 16]])
+    calibration = _nerfstudio(tmp_path / "t.json", w2c, ["cam0", "cam1", "cam2"], 64, k1=-0.2)
+    report = import_scene(tmp_path / "b", images=frames, calibration=calibration, log=lambda s: None)
+    assert all(v.startswith("undistorted (OPENCV") for v in report["undistortion"].values())
+    assert np.allclose(load_scene(tmp_path / "b", "train").frames[0].camera.K.numpy()[0, 0], 20.0)

@@ -86,3 +86,16 @@ def test_textured_surroundings_fill_the_background_and_leave_the_masks(tmp_path)
         assert np.abs(after[covered].astype(int) - before[covered]).mean() < 20  # the object as it was
         masks = [iio.imread(d / "gt" / "masks" / "train" / image.name) for d in (plain, room)]
         assert np.array_equal(*masks)
+
+
+def test_the_written_colmap_model_is_a_calibration_that_gives_the_same_scene(imported, tmp_path):
+    _, out, _ = imported
+    again = tmp_path / "again"
+    report = import_scene(
+        again, videos=out.parent / "videos", calibration=out / "colmap" / "sparse" / "0",
+        test_cameras=("c09",), drop_unregistered=True, log=lambda s: None,
+    )  # fmt: skip
+    assert report["calibration"]["tool"] == "COLMAP model" and list(report["dropped"]) == ["noise"]
+    first, second = imported_w2c(out), imported_w2c(again)
+    assert sorted(first) == sorted(second)
+    assert all(np.allclose(first[n], second[n], atol=1e-6) for n in first)
