@@ -26,6 +26,7 @@ from .commands import (
     Demo,
     Eval,
     Export,
+    Import,
     Masks,
     Metrics,
     Render,
@@ -151,7 +152,10 @@ def _demo(a: Demo) -> None:
 def _synth(a: Synth) -> None:
     from ..data.synth import synthesize
 
-    synthesize(a.scene, a.out, a.resolution, a.views, a.frames, a.seed, sun=a.sun, ambient=a.ambient)
+    synthesize(
+        a.scene, a.out, a.resolution, a.views, a.frames, a.seed, sun=a.sun, ambient=a.ambient,
+        textured_surroundings=a.textured_surroundings,
+    )  # fmt: skip
 
 
 def _calibrate(a: Calibrate) -> None:
@@ -223,19 +227,8 @@ def _segment(a: Segment) -> None:
     from ..segment.report import format_report
 
     report = segment_run(
-        a.run,
-        a.data,
-        a.k,
-        a.auto_k,
-        a.time,
-        a.json,
-        a.out,
-        a.video,
-        a.settings,
-        a.score,
-        a.device,
-        a.ignore_pixels,
-    )
+        a.run, a.data, a.k, a.auto_k, a.time, a.json, a.out, a.video, a.settings, a.score, a.device, a.ignore_pixels
+    )  # fmt: skip
     print(format_report(report))
 
 
@@ -243,6 +236,13 @@ def _masks(a: Masks) -> None:
     from ..data.motion_masks import format_report, write_motion_masks
 
     report = write_motion_masks(a.data, a.split, a.out, a.downscale, a.settings, a.figure, a.figure_frames)
+    _dump(report, a.json, format_report(report))
+
+
+def _import(a: Import) -> None:
+    from ..data.importer import format_report, import_scene
+
+    report = import_scene(**{k: v for k, v in vars(a).items() if k != "json"})
     _dump(report, a.json, format_report(report))
 
 
@@ -278,6 +278,7 @@ COMMANDS: dict[str, tuple[type, Callable]] = {
     "view": (View, _view),
     "segment": (Segment, _segment),
     "masks": (Masks, _masks),
+    "import": (Import, _import),
     "metrics": (Metrics, _metrics),
     "bench": (Bench, _bench),
     "build": (Build, _build),

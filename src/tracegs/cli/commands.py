@@ -55,6 +55,8 @@ class Synth:
     """Irradiance of the sun (directional light, hard shadows); 0 = no shading and no shadows."""
     ambient: float = 0.4
     """Radiance of a surface of albedo 1 lit by the ambient term alone."""
+    textured_surroundings: bool = False
+    """Also render a textured floor and walls round the scene, which a calibration (`tracegs import`) matches."""
 
 
 @dataclass
@@ -278,6 +280,44 @@ class Masks:
     json: Path | None = None
     """Also write the report (per camera: frames, share of moving pixels) here."""
     settings: MotionMaskSettings = field(default_factory=MotionMaskSettings)
+
+
+@dataclass
+class Import:
+    """Turn a rig's synchronised videos (one per camera) into a calibrated scene (COLMAP) with motion masks."""
+
+    out: Path
+    """The scene folder to write (replaced only when a former import wrote it)."""
+    videos: Path | None = None
+    """Folder of the recordings: one video per camera, the camera named by the file's stem."""
+    images: Path | None = None
+    """Instead of --videos: a folder with one folder of frames (PNG, JPEG, in name order) per camera."""
+    fps: float | None = None
+    """Frames per second (default: the slowest video's rate); the rate of --images folders (default 30)."""
+    start: float = 0.0
+    """Seconds into the (lined up) recordings where the scene starts."""
+    end: float | None = None
+    """Seconds into the recordings where the scene ends (default: where the shortest ends)."""
+    offsets: tuple[float, ...] = ()
+    """Per camera (name order): seconds cut from its start to line the recordings up (started 0.5 s early: 0.5)."""
+    downscale: int = 1
+    """Divide the image size by this integer factor."""
+    calibration: Path | None = None
+    """Cameras from a COLMAP model folder, a nerfstudio transforms.json or a Dynamic 3D Gaussians meta."""
+    calib_frames: int = 1
+    """Frames per camera COLMAP calibrates on, spread over the span (more for a scene of little texture)."""
+    camera_model: Literal["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"] = "SIMPLE_RADIAL"
+    """COLMAP's camera model, one per camera; the images of a model with distortion are undistorted."""
+    scale: float | None = None
+    """The cameras' median distance from where they look, e.g. in metres (default: 4 for COLMAP's; a file's own)."""
+    val_cameras: tuple[str, ...] = ()
+    """Cameras held out as the val split."""
+    test_cameras: tuple[str, ...] = ()
+    """Cameras held out as the test split."""
+    drop_unregistered: bool = False
+    """Write the scene without the cameras COLMAP cannot register (else it stops, naming them)."""
+    json: Path | None = None
+    """Also write the report here (it always goes to OUT/import.json)."""
 
 
 @dataclass

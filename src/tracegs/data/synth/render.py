@@ -98,8 +98,10 @@ def _mesh(name: str, mesh, bsdf: dict, emitter: dict):
     return shape
 
 
-def build_scene(spec: SceneSpec, lighting: Lighting = Lighting()) -> MitsubaScene:
-    """Load every piece of every part in its rest pose into the colour scene and the id scene."""
+def build_scene(spec: SceneSpec, lighting: Lighting = Lighting(), still: tuple = ()) -> MitsubaScene:
+    """Load every piece of every part in its rest pose into the colour scene and the id scene, and
+    the ``still`` pieces (``room.py``'s surroundings) into the colour scene alone: they never move
+    and have no part id."""
     mi = mitsuba()
     color = {
         "type": "scene",
@@ -130,6 +132,17 @@ def build_scene(spec: SceneSpec, lighting: Lighting = Lighting()) -> MitsubaScen
             part_id = {"type": "area", "radiance": {"type": "rgb", "value": [float(p + 1), 0.0, 0.0]}}
             ids[sid] = _mesh(sid, piece.mesh, black, part_id)
             rest.append((sid, p, piece.mesh.vertices.astype(np.float64)))
+    for k, piece in enumerate(still):
+        bsdf = {
+            "type": "twosided",
+            "material": {"type": "diffuse", "reflectance": _rgb_bitmap(piece.texture)},
+        }
+        ambient = {
+            "type": "area",
+            "sampling_weight": 0.0,
+            "radiance": _rgb_bitmap(lighting.ambient * piece.texture),
+        }
+        color[f"still{k}"] = _mesh(f"still{k}", piece.mesh, bsdf, ambient)
     color_scene, id_scene = mi.load_dict(color), mi.load_dict(ids)
     return MitsubaScene(color_scene, id_scene, (mi.traverse(color_scene), mi.traverse(id_scene)), rest)
 

@@ -41,6 +41,7 @@ from .render import (
     samples_per_pixel,
     to_srgb8,
 )
+from .room import room_pieces
 from .scenes import SceneSpec, get_scene
 
 EXTRAPOLATION_HORIZON = 1.5
@@ -201,6 +202,7 @@ def synthesize(
     spp: int = DEFAULT_SPP,
     sun: float = Lighting.sun_irradiance,
     ambient: float = Lighting.ambient,
+    textured_surroundings: bool = False,
 ) -> Path:
     """Render ``scene`` (one of ``SCENES``) with ground truth into the folder ``out``; returns it.
 
@@ -211,6 +213,8 @@ def synthesize(
     ``sun`` and ``ambient`` set the light (``render.Lighting``): ``sun=0`` gives a scene whose surfaces
     look the same whichever way they face (no shading, no shadows), for telling motion errors from
     the shading changes that no motion of constant-colour Gaussians renders.
+    ``textured_surroundings``: a textured floor and walls round the scene (``room.py``), which a
+    calibration matches between the cameras; the images are opaque then.
     """
     spec = _validate(scene, resolution, views, frames, train_views, train_frames, spp, seed)
     if not (sun >= 0 and ambient >= 0 and sun + ambient > 0):
@@ -232,7 +236,11 @@ def synthesize(
             (tmp / name).mkdir()
             (tmp / "gt" / "masks" / name).mkdir(parents=True)
         started = time.perf_counter()
-        ms = build_scene(spec, lighting)
+        room = ()
+        if textured_surroundings:
+            distance = float(np.linalg.norm(rig.c2w[0, :3, 3] - bounds.center))
+            room = room_pieces(bounds.aabb, bounds.center, distance, seed)
+        ms = build_scene(spec, lighting, room)
         sensors = [make_sensors(c2w, rig.camera_angle_x, resolution, spp) for c2w in rig.c2w]
         bar = _progress(views * frames, progress, f"synth {scene}")
         for f, t in enumerate(times):
@@ -266,7 +274,7 @@ def synthesize(
             "sun": lighting.sun_irradiance,
             "ambient": lighting.ambient,
             "render_seconds": round(render_seconds, 2),
-        }
+        } | ({"textured_surroundings": True} if textured_surroundings else {})
         _write_json(tmp / "gt" / "synth.json", settings)
         _replace(tmp, out)
     except BaseException:
