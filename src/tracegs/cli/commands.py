@@ -44,9 +44,8 @@ class Synth:
     out: Path
     """Output scene folder (Blender/D-NeRF format plus gt/)."""
     scene: str = "fan"
-    """fan, foldingchair, satellite, fallingball, slider (constant forces), pendulum, spring, brake,
-    bounce, turntable (forces that are not constant), or rolling, gyroscope, doublependulum,
-    planarsprings, collision (coupled motion; docs/SYNTH.md)."""
+    """fan, foldingchair, satellite, fallingball, slider (constant forces), pendulum, spring, brake, bounce,
+    turntable (changing forces), rolling, gyroscope, doublependulum, planarsprings, collision (docs/SYNTH.md)."""
     resolution: int = 128
     views: int = 15
     frames: int = 60
