@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import os
 import random
+import shutil
 import socket
 import tempfile
 from collections.abc import Iterator
@@ -92,6 +93,34 @@ def atomic_write_bytes(path: Path, data: bytes) -> Path:
 
 def atomic_torch_save(obj, path: Path) -> Path:
     return _atomic(path, lambda tmp: torch.save(obj, tmp))
+
+
+def fresh_folder(out: Path, written_by: str, marker: str) -> Path:
+    """An empty temporary folder beside ``out``, in which a command (``written_by``, e.g. "tracegs
+    synth") writes what ``replace_folder`` then moves to ``out``; FileExistsError when ``out`` is a file,
+    or a non-empty folder without ``marker`` (a path inside it: that command's own output)."""
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"{out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not (out / marker).exists():
+        raise FileExistsError(
+            f"{out} is a non-empty folder that {written_by} did not write; not overwriting it"
+        )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    return tmp
+
+
+def replace_folder(tmp: Path, out: Path) -> None:
+    """Move the finished folder ``tmp`` to ``out``; an older output under that name is removed."""
+    if out.exists():
+        old = out.parent / f".{out.name}.old-{os.getpid()}"
+        out.rename(old)
+        tmp.rename(out)
+        shutil.rmtree(old)
+    else:
+        tmp.rename(out)
 
 
 def remove_temporaries(path: Path) -> list[Path]:

@@ -22,12 +22,12 @@ held-out cameras' frames are ``val`` and ``test``. The scene is assembled in a t
 from __future__ import annotations
 
 import json
-import os
 import shutil
 from pathlib import Path
 
 import numpy as np
 
+from ..utils import fresh_folder, replace_folder
 from .calibration import normalise, read_calibration, rescaled, transform_w2c
 from .colmap import RigFit, calibrate_rig, largest_shift, undistort, undistortion_map
 from .frames import DatasetError
@@ -37,30 +37,6 @@ REPORT = "import.json"
 MIN_SHIFT_PX = 0.1
 """Distortion that moves no pixel by more than this is left in the images (undistorting would only
 blur them)."""
-
-
-def _destination(out: Path) -> Path:
-    if out.exists() and not out.is_dir():
-        raise FileExistsError(f"{out} exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not (out / REPORT).is_file():
-        raise FileExistsError(
-            f"{out} is a non-empty folder that tracegs import did not write; not overwriting it"
-        )
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
-    return tmp
-
-
-def _replace(tmp: Path, out: Path) -> None:
-    if out.exists():
-        old = out.parent / f".{out.name}.old-{os.getpid()}"
-        out.rename(old)
-        tmp.rename(out)
-        shutil.rmtree(old)
-    else:
-        tmp.rename(out)
 
 
 def image_name(camera: str, k: int) -> str:
@@ -180,7 +156,7 @@ def import_scene(
     for note in timing.notes:
         log(note)
     out = Path(out)
-    tmp = _destination(out)
+    tmp = fresh_folder(out, "tracegs import", REPORT)
     try:
         _decode_all(sources, timing, tmp / "images", log)
         fit = _calibrate(
@@ -253,7 +229,7 @@ def import_scene(
             "masks": mask_report,
         }
         (tmp / REPORT).write_text(json.dumps(report, indent=2) + "\n")
-        _replace(tmp, out)
+        replace_folder(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -73,10 +73,16 @@ class DefaultStrategy:
         if step > cfg.refine_start and step % cfg.refine_every == 0:
             report, _ = self._refine(params, optimizers, state, step)
         if cfg.reset_every and step > 0 and step % cfg.reset_every == 0:
-            limit = torch.logit(torch.tensor(cfg.reset_opacity * 2)).item()
-            params["opacities"].data.clamp_(max=limit)
-            reset_optimizer_state(optimizers["opacities"])
+            self._reset_opacities(params, optimizers)
         return report
+
+    def _reset_opacities(self, params, optimizers, held: torch.Tensor | None = None) -> None:
+        """3DGS's opacity reset (to ``reset_opacity``), of the Gaussians not ``held`` (None: all)."""
+        limit = torch.logit(torch.tensor(self.cfg.reset_opacity * 2)).item()
+        opacities = params["opacities"].data
+        rows = slice(None) if held is None else ~held
+        opacities[rows] = opacities[rows].clamp(max=limit)
+        reset_optimizer_state(optimizers["opacities"])
 
     def _accumulate(self, params, state, info) -> None:
         grad = info["means2d"].grad
@@ -116,11 +122,7 @@ class DefaultStrategy:
         if step % cfg.refine_every == 0:
             report, held = self._refine(params, optimizers, state, step, held)
         if cfg.reset_every and step % cfg.reset_every == 0:
-            limit = torch.logit(torch.tensor(cfg.reset_opacity * 2)).item()
-            opacities = params["opacities"].data
-            moving = slice(None) if held is None else ~held
-            opacities[moving] = opacities[moving].clamp(max=limit)
-            reset_optimizer_state(optimizers["opacities"])
+            self._reset_opacities(params, optimizers, held)
         return report, held
 
     def _refine(

@@ -76,6 +76,20 @@ def _rgb_bitmap(image: np.ndarray) -> dict:
     return {"type": "bitmap", "bitmap": mi.Bitmap(np.ascontiguousarray(image, dtype=np.float32))}
 
 
+def _materials(piece, lighting) -> tuple[dict, dict]:
+    """(the diffuse BSDF, the ambient emitter) of a textured piece."""
+    bsdf = {
+        "type": "twosided",
+        "material": {"type": "diffuse", "reflectance": _rgb_bitmap(piece.texture)},
+    }
+    ambient = {
+        "type": "area",
+        "sampling_weight": 0.0,
+        "radiance": _rgb_bitmap(lighting.ambient * piece.texture),
+    }
+    return bsdf, ambient
+
+
 def _mesh(name: str, mesh, bsdf: dict, emitter: dict):
     """A Mitsuba mesh from our numpy mesh, with its material and emitter."""
     mi = mitsuba()
@@ -119,30 +133,12 @@ def build_scene(spec: SceneSpec, lighting: Lighting = Lighting(), still: tuple =
     for p, part in enumerate(spec.parts):
         for k, piece in enumerate(part.pieces):
             sid = _shape_id(p, k)
-            bsdf = {
-                "type": "twosided",
-                "material": {"type": "diffuse", "reflectance": _rgb_bitmap(piece.texture)},
-            }
-            ambient = {
-                "type": "area",
-                "sampling_weight": 0.0,
-                "radiance": _rgb_bitmap(lighting.ambient * piece.texture),
-            }
-            color[sid] = _mesh(sid, piece.mesh, bsdf, ambient)
+            color[sid] = _mesh(sid, piece.mesh, *_materials(piece, lighting))
             part_id = {"type": "area", "radiance": {"type": "rgb", "value": [float(p + 1), 0.0, 0.0]}}
             ids[sid] = _mesh(sid, piece.mesh, black, part_id)
             rest.append((sid, p, piece.mesh.vertices.astype(np.float64)))
     for k, piece in enumerate(still):
-        bsdf = {
-            "type": "twosided",
-            "material": {"type": "diffuse", "reflectance": _rgb_bitmap(piece.texture)},
-        }
-        ambient = {
-            "type": "area",
-            "sampling_weight": 0.0,
-            "radiance": _rgb_bitmap(lighting.ambient * piece.texture),
-        }
-        color[f"still{k}"] = _mesh(f"still{k}", piece.mesh, bsdf, ambient)
+        color[f"still{k}"] = _mesh(f"still{k}", piece.mesh, *_materials(piece, lighting))
     color_scene, id_scene = mi.load_dict(color), mi.load_dict(ids)
     return MitsubaScene(color_scene, id_scene, (mi.traverse(color_scene), mi.traverse(id_scene)), rest)
 

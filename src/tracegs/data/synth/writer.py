@@ -19,7 +19,6 @@ an interrupted run never leaves a half-written dataset under the final name.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import time
 from dataclasses import dataclass
@@ -28,6 +27,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
+from ...utils import fresh_folder, replace_folder
 from . import geometry as g
 from .cameras import Rig, Split, default_train_frames, default_val_views, make_rig, make_split
 from .motion import EQUATIONS, FORMULA, motion_record, transforms_at
@@ -149,33 +149,6 @@ def _validate(scene, resolution, views, frames, train_views, train_frames, spp, 
     return spec
 
 
-def _prepare_destination(out: Path) -> Path:
-    """Check that ``out`` may be (re)written and return an empty temporary folder beside it."""
-    if out.exists() and not out.is_dir():
-        raise FileExistsError(f"{out} exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not (out / "gt" / "synth.json").is_file():
-        raise FileExistsError(
-            f"{out} is a non-empty folder that tracegs synth did not write; not overwriting it"
-        )
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir()
-    return tmp
-
-
-def _replace(tmp: Path, out: Path) -> None:
-    """Move the finished folder into place; an older synth output under that name is removed."""
-    if out.exists():
-        old = out.parent / f".{out.name}.old-{os.getpid()}"
-        out.rename(old)
-        tmp.rename(out)
-        shutil.rmtree(old)
-    else:
-        tmp.rename(out)
-
-
 def _write_json(path: Path, data: dict) -> None:
     path.write_text(json.dumps(data, indent=2) + "\n")
 
@@ -230,7 +203,7 @@ def synthesize(
     split: Split = make_split(views, frames, n_train_views, n_train_frames)
     split_of = {pair: name for name, pairs in split.items() for pair in pairs}
 
-    tmp = _prepare_destination(out)
+    tmp = fresh_folder(out, "tracegs synth", "gt/synth.json")
     try:
         for name in ("train", "val", "test"):
             (tmp / name).mkdir()
@@ -276,7 +249,7 @@ def synthesize(
             "render_seconds": round(render_seconds, 2),
         } | ({"textured_surroundings": True} if textured_surroundings else {})
         _write_json(tmp / "gt" / "synth.json", settings)
-        _replace(tmp, out)
+        replace_folder(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
