@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .force_law import rk4_step
+
 Array = np.ndarray
 
 TERM_KINDS = ("1", "q", "v", "sin", "cos", "sign", "drag")
@@ -147,15 +149,8 @@ def _acceleration(terms: list[Term], xi: Array, q: Array, v: Array) -> Array:
 
 
 def _rk4(terms: list[Term], xi: Array, q: Array, v: Array, h: Array) -> tuple[Array, Array]:
-    """One RK4 step of ``h`` [B, 1] of the states ``q``, ``v`` [B, n]."""
-    a1 = _acceleration(terms, xi, q, v)
-    q2, v2 = q + 0.5 * h * v, v + 0.5 * h * a1
-    a2 = _acceleration(terms, xi, q2, v2)
-    q3, v3 = q + 0.5 * h * v2, v + 0.5 * h * a2
-    a3 = _acceleration(terms, xi, q3, v3)
-    q4, v4 = q + h * v3, v + h * a3
-    a4 = _acceleration(terms, xi, q4, v4)
-    return q + h / 6 * (v + 2 * v2 + 2 * v3 + v4), v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
+    """One RK4 step (``force_law.rk4_step``) of ``h`` [B, 1] of the states ``q``, ``v`` [B, n]."""
+    return rk4_step(lambda q, v, x: _acceleration(terms, x, q, v), q, v, xi, h)
 
 
 def _bounce(terms, xi, q0, v0, q1, v1, h, contact: Contact) -> tuple[Array, Array]:

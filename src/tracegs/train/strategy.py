@@ -64,17 +64,25 @@ class DefaultStrategy:
     ) -> dict[str, int]:
         """Accumulate gradients of this step (of each view it rendered); refine on schedule. Returns
         counts of what changed."""
-        cfg = self.cfg
         if step >= self.refine_stop:
             return {}
+        report, _ = self._post_backward(
+            params, optimizers, state, step, render_infos, None, self.cfg.refine_start
+        )
+        return report
+
+    def _post_backward(self, params, optimizers, state, step, render_infos, held, refine_after: int):
+        """Accumulate this step's gradients; clone, split and prune after step ``refine_after`` on the
+        schedule, reset opacities on theirs; of the Gaussians not ``held`` (None: all). ``(report, held)``."""
+        cfg = self.cfg
         for info in render_infos:
             self._accumulate(params, state, info)
         report: dict[str, int] = {}
-        if step > cfg.refine_start and step % cfg.refine_every == 0:
-            report, _ = self._refine(params, optimizers, state, step)
+        if step > refine_after and step % cfg.refine_every == 0:
+            report, held = self._refine(params, optimizers, state, step, held)
         if cfg.reset_every and step > 0 and step % cfg.reset_every == 0:
-            self._reset_opacities(params, optimizers)
-        return report
+            self._reset_opacities(params, optimizers, held)
+        return report, held
 
     def _reset_opacities(self, params, optimizers, held: torch.Tensor | None = None) -> None:
         """3DGS's opacity reset (to ``reset_opacity``), of the Gaussians not ``held`` (None: all)."""
@@ -100,6 +108,7 @@ class DefaultStrategy:
         state["grad2d"][visible] += g[visible].norm(dim=-1)
         state["count"][visible] += 1
 
+    @torch.no_grad()
     def refine_moving(
         self,
         params: nn.ParameterDict,
@@ -113,17 +122,9 @@ class DefaultStrategy:
         ``step_post_backward``, but the Gaussians ``held`` [N] bool (static, None: none) are neither
         grown, pruned nor reset, and growth stops at ``densify.moving_max_gaussians`` moving ones. The
         report, and ``held`` for the new rows (a grown Gaussian moves)."""
-        cfg = self.cfg
-        if step >= cfg.moving_refine_stop:
+        if step >= self.cfg.moving_refine_stop:
             return {}, held
-        for info in render_infos:
-            self._accumulate(params, state, info)
-        report: dict[str, int] = {}
-        if step % cfg.refine_every == 0:
-            report, held = self._refine(params, optimizers, state, step, held)
-        if cfg.reset_every and step % cfg.reset_every == 0:
-            self._reset_opacities(params, optimizers, held)
-        return report, held
+        return self._post_backward(params, optimizers, state, step, render_infos, held, refine_after=-1)
 
     def _refine(
         self, params, optimizers, state, step, held=None

@@ -224,12 +224,13 @@ class Trainer:
         report = self.strategy.step_post_backward(
             self.model.gaussians, state.optimizers, state.strategy, step, infos
         )
-        if not static and step < cfg.densify.moving_refine_stop:  # stage 2: densify what moves
+        if not static:  # stage 2 densifies what moves until densify.moving_refine_stop
             held = self.model.static_mask
-            report, grown = self.strategy.refine_moving(
+            moved, grown = self.strategy.refine_moving(
                 self.model.gaussians, state.optimizers, state.strategy, step, infos, held
             )
-            if report:
+            if moved:
+                report = moved
                 self.model.set_static_mask(grown)
         t_end = self._clock()
         for key, dt in (
