@@ -1,12 +1,12 @@
-"""Joint parts after the handover: the rigid motion of each part that ``joints.py`` put on a law
-(a hinge or a rail, a part turning on another's joint, a thrown part), from its integrated coordinate,
-and the Gaussians moved by it."""
+"""Joint parts after the handover: the rigid motion of each part that ``joints.py`` gave an identified
+model (a hinge or a rail, a part turning on another's joint, a thrown part), from its coordinate
+integrated by that model, and the Gaussians moved by it."""
 
 from __future__ import annotations
 
 import torch
 
-from ..physics.force_law_fit import FittedLaw
+from ..physics.identify import IdentifiedModel
 from ..physics.joint import Hinge, Slider, hinge_transforms, slider_transforms
 from ..physics.so3 import quat_multiply, quat_normalize, rodrigues, rotmat_to_quat
 
@@ -21,16 +21,21 @@ def joint_transforms(joint: dict, q: torch.Tensor) -> tuple[torch.Tensor, torch.
     return slider_transforms(slider, q)
 
 
-def coordinate_at(part: dict, t0: float, t: float) -> float:
-    """A stored part's coordinate ``q`` at ``t``: its law integrated from its state ``(q0, v0)`` at ``t0``."""
-    params = tuple(float(p) for p in part["params"])
-    law = FittedLaw(part["law"], params, t0, part["q0"], part["v0"], 0.0, part["dt_max"])
-    return float(law.integrate_from(part["q0"], part["v0"], t0, [t])[0][0])
+def coordinate_at(part: dict, t: float) -> float:
+    """A stored part's coordinate ``q`` at ``t`` (>= the handover): its identified model
+    (``IdentifiedModel.to_dict``) integrated from its state at the handover."""
+    model = IdentifiedModel.from_dict(part["model"])
+    return float(model.rollout([max(t, model.t_end)])[0][0, 0])
 
 
-def _ends(part: dict, t0: float, t: float) -> tuple[torch.Tensor, ...]:
-    """``(R0, T0, R1, T1)``: a part's joint transforms at its law's state at ``t0`` and at ``t``."""
-    q = torch.tensor([part["q0"], coordinate_at(part, t0, t)], dtype=torch.float64)
+def _start(part: dict) -> float:
+    """A stored part's coordinate at the handover."""
+    return float(part["model"]["q_end"][0])
+
+
+def _ends(part: dict, t: float) -> tuple[torch.Tensor, ...]:
+    """``(R0, T0, R1, T1)``: a part's joint transforms at the handover and at ``t``."""
+    q = torch.tensor([_start(part), coordinate_at(part, t)], dtype=torch.float64)
     rotation, translation = joint_transforms(part, q)
     return rotation[0], translation[0], rotation[1], translation[1]
 
@@ -41,7 +46,7 @@ def thrown_motion(part: dict, t0: float, t: float) -> tuple[torch.Tensor, torch.
     ``velocity`` and bounces along ``axis``."""
     s = t - t0
     turn = rodrigues(part["spin"] * s)
-    centre = part["pivot"] + part["velocity"] * s + part["axis"] * (coordinate_at(part, t0, t) - part["q0"])
+    centre = part["pivot"] + part["velocity"] * s + part["axis"] * (coordinate_at(part, t) - _start(part))
     return turn, centre - turn @ part["pivot"]
 
 
@@ -52,13 +57,13 @@ def part_motion(parts: list[dict], k: int, t0: float, t: float) -> tuple[torch.T
     part's own motion there."""
     if parts[k]["joint"] == "thrown":
         return thrown_motion(parts[k], t0, t)
-    r0, s0, r1, s1 = _ends(parts[k], t0, t)
+    r0, s0, r1, s1 = _ends(parts[k], t)
     turn = r1 @ r0.T
     shift = s1 - turn @ s0
     parent = parts[k].get("parent")
     if parent is None:
         return turn, shift
-    p0, u0, p1, u1 = _ends(parts[parent], t0, t)
+    p0, u0, p1, u1 = _ends(parts[parent], t)
     return p1 @ turn @ p0.T, p1 @ (shift - turn @ p0.T @ u0) + u1
 
 
@@ -66,8 +71,8 @@ def apply_joint_laws(
     gaussians: dict[str, torch.Tensor], start: dict[str, torch.Tensor], joints: dict, t: float
 ) -> dict[str, torch.Tensor]:
     """``gaussians`` with each joint part's Gaussians moved rigidly from their ``start`` (f_defo's state
-    at the handover ``joints["t0"]``) to ``t``: its law integrated from ``(q0, v0)`` to ``q(t)``, and
-    the joint's transform at ``q(t)`` relative to its transform at ``q0``."""
+    at the handover ``joints["t0"]``) to ``t``: its model integrated from its state there to ``q(t)``,
+    and the joint's transform at ``q(t)`` relative to its transform at the handover."""
     means, quats = gaussians["means"].clone(), quat_normalize(gaussians["quats"]).clone()
     labels = joints["labels"].to(means.device)
     for k in range(len(joints["parts"])):

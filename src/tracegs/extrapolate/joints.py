@@ -32,8 +32,9 @@ import math
 import numpy as np
 import torch
 
-from ..physics.force_law_fit import DEFAULT_LAWS, choose_law
 from ..physics.free_body import fit_rigid_transform, split_rigid
+from ..physics.identify import holdout_split, identify
+from ..physics.sindy import term_name
 from ..physics.joint import (
     fit_hinge,
     fit_slider,
@@ -115,9 +116,19 @@ def _fits(joint: dict, residuals: dict, settings) -> bool:
     return rigid <= RIGID_TOLERANCE and residuals[joint["joint"]] <= rigid + settings.joint_fit_tolerance
 
 
-def _finite(value: float) -> float | None:
+def _finite(value: float | None) -> float | None:
     """A number as ``summary.json`` can hold it (JSON has no NaN or infinity: null)."""
-    return float(value) if math.isfinite(value) else None
+    return float(value) if value is not None and math.isfinite(value) else None
+
+
+def _constants(model) -> dict:
+    """An identified model's non-zero coefficients by equation and term, ``{"q0'' <- sin q0": -37.2}``."""
+    return {
+        f"q{i}'' <- {term_name(term)}": _finite(float(c))
+        for i, row in enumerate(model.coefficients)
+        for term, c in zip(model.terms, row, strict=True)
+        if c != 0
+    }
 
 
 class _LearnedBacktest:
@@ -169,35 +180,46 @@ def choose_part_law(
     if joint is None or not _fits(joint, residuals, settings):
         return None, {**entry, "why": "not rigid, or on no hinge or rail: the learned physics"}
     t = np.asarray(times)
-    choice = choose_law(t, q, DEFAULT_LAWS, settings.joint_law_holdout)
-    fitted = choice.fitted
-    # the part's positions on the held-out frames: the law fitted to the frames before them, against
-    # the learned physics started at the last of those frames
-    before, n = choice.held_out_fit, choice.fitted_samples
+    # on a turning part a steady turn still bends, so there the model need not beat moving on at the
+    # last joint velocity: the learned physics is what it must beat (below)
+    model = identify(
+        t,
+        q.numpy(),
+        angular=(joint["joint"] == "hinge",),
+        holdout_fraction=settings.joint_law_holdout,
+        **({} if frame is None else {"margin": math.inf}),
+    )
+    n = holdout_split(len(t), settings.joint_law_holdout)
     truth = torch.stack([p.detach().double().cpu() for p in path[n:]])
-    held = joint_transforms(joint, before.predict(t[n:]))
+    entry.update(
+        model=model.equations,
+        constants=_constants(model),
+        events=[round(e.time, 6) for e in model.events],
+        held_out={k: _finite(v) for k, v in model.held_out.items() if k != "samples"},
+        held_out_frames=len(t) - n,
+        residual_of_path=_finite(model.residual),
+        tried=model.tried,
+        verdict=model.why,
+    )
+    if model.held_out_path is None or not np.isfinite(model.coefficients).all():
+        return None, {**entry, "why": f"{model.why}: the learned physics"}
+    # the part's positions on the held-out frames: the model fitted to the frames before them, against
+    # the learned physics started at the last of those frames
+    held = joint_transforms(joint, torch.from_numpy(model.held_out_path[:, 0]))
     law_means = _positions(x0, *held)
     if frame is not None:  # a carried part: its frame's predicted motion, then its own, in the world
         law_means, truth = law_means @ frame[0].transpose(1, 2) + frame[1][:, None], frame[2]
     learned_means = learned.means(float(t[n - 1]), [float(s) for s in t[n:]])[:, rows.cpu()]
-    entry.update(
-        law=fitted.name,
-        constants={k: _finite(v) for k, v in fitted.constants.items()},
-        held_out={k: _finite(v) for k, v in choice.held_out.items()},
-        baseline=_finite(choice.backtest.baseline_rms),
-        held_out_frames=len(t) - n,
-        position_rms={"law": _rms(law_means, truth), "learned": _rms(learned_means, truth)},
-    )
-    q0, v0 = (float(x[0]) for x in fitted.state_at([t[-1]]))
-    part = {**joint, "law": fitted.name, "params": torch.tensor(fitted.params, dtype=torch.float64)}
-    part.update(q0=q0, v0=v0, dt_max=fitted.dt_max, parent=None)
+    entry["position_rms"] = {"law": _rms(law_means, truth), "learned": _rms(learned_means, truth)}
+    part = {**joint, "model": model.to_dict(), "parent": None}
     entry["_frame"] = {"part": part, "q": q, "held": held}
-    if fitted.name == "constant" and frame is None:  # (on a turning part, a constant turn still bends)
-        why = "constant: the learned physics"
-    elif min(fitted.constants.get("k", 0.0), fitted.constants.get("c", 0.0)) < 0:
-        why = "unstable (a negative stiffness or damping grows without bound): the learned physics"
-    elif frame is None and not choice.backtest.law_rms < choice.backtest.baseline_rms:
-        why = "no better than moving on at the last velocity: the learned physics"
+    span = float(t[-1] - t[0])
+    if model.active_kinds <= {"1"} and frame is None:  # (on a turning part, a constant turn still bends)
+        why = "a constant acceleration, which the learned physics is: the learned physics"
+    elif not model.adopted:
+        why = f"{model.why}: the learned physics"
+    elif model.growth_rate(q.numpy().mean()) * span > 1.0:
+        why = "unstable (a small departure grows e-fold within the span): the learned physics"
     elif not entry["position_rms"]["law"] < settings.joint_law_tolerance * entry["position_rms"]["learned"]:
         why = "the learned physics predicts the held-out frames as well: the learned physics"
     else:

@@ -66,21 +66,22 @@ class ExtrapolationConfig:
     stays under this multiple of the learned physics'."""
     joint_laws: bool = False
     """Give each rigid part that turns on a hinge or slides on a rail (found as the free bodies' parts
-    are, among the moving Gaussians, and not a free body) a force law of its one joint coordinate,
-    ``q'' = f(q, q')`` (``physics/force_law.py``: constant, friction stop, spring-damper, pendulum),
-    identified on f_defo's path of the part up to the handover and integrated on from there
-    (``extrapolate/joints.py``). A law is adopted only where it is not ``constant`` and predicts the
-    held-out end of that path better than moving on at the last velocity and no worse than
+    are, among the moving Gaussians, and not a free body) an identified model of its joint coordinate,
+    ``q'' = f(q, q')`` (``physics/identify.py``: a sparse sum of library terms, split at velocity
+    jumps), identified on f_defo's path of the part up to the handover and integrated on from there
+    (``extrapolate/joints.py``). A model is adopted only where it is more than a constant acceleration,
+    is stable, predicts the held-out end of that path clearly better than moving on at the last
+    velocity, fits the whole path, and predicts the part's positions there no worse than
     ``joint_law_tolerance`` times the learned physics does; elsewhere the learned physics stays (the
     paper's extrapolation) and the run summary says why. A part that turns on a joint of its own on
     such a part (a box spinning on a turntable) is put on that joint in the carrier's frame, and a
-    moving group that bounces on a floor within the span on the ``bounce`` law (``extrapolate/thrown.py``), each
-    under the same backtest. Off = the paper's extrapolation (``paper``); on in ``cpu-fast`` and
-    ``capture``."""
+    moving group that bounces on a floor within the span falls under gravity with a contact
+    (``extrapolate/thrown.py``), each under the same backtest. Off = the paper's extrapolation
+    (``paper``); on in ``cpu-fast`` and ``capture``."""
     joint_law_holdout: float = 0.25
     """Fraction of the part's frames at the end of its path up to the handover (at least one) that the
-    laws are fitted without and scored on, to choose among them (``choose_law``) and to backtest the
-    chosen one against the learned physics; the chosen law is then fitted to every frame."""
+    model is fitted without and scored on, to choose its terms and to backtest it against the learned
+    physics; the chosen terms are then fitted to every frame."""
     joint_law_tolerance: float = 0.8
     """A joint law is adopted only while its error on the held-out frames (RMS distance of the part's
     Gaussians from f_defo's) stays under this multiple of the learned physics' started at the same

@@ -1,7 +1,7 @@
 """The post-training state of a run: everything the extrapolation policy chose on the training images
 when training ended, saved in the run folder (``extrapolation.pt``) and read back as it is.
 
-N: Gaussians, K: free bodies, P: a force law's parameters.
+N: Gaussians, K: free bodies.
 """
 
 from __future__ import annotations
@@ -12,11 +12,12 @@ import torch
 
 from ..physics.free_body import FREE_BODY_NUMBERS
 
-STATE_VERSION = 2
+STATE_VERSION = 3
 """Bumped when the saved layout changes; a run with a version not in ``READABLE_VERSIONS`` is
 calibrated again (``tracegs calibrate --run RUN``)."""
-READABLE_VERSIONS = (1, 2)
-"""The saved layouts read as they are: version 1 has no joint laws (none chosen)."""
+READABLE_VERSIONS = (1, 3)
+"""The saved layouts read as they are: version 1 has no joint laws (none chosen); version 2's joint
+parts carried a law of a fixed catalog, not an identified model."""
 
 
 @dataclass
@@ -38,9 +39,9 @@ class ExtrapolationState:
     """``{"t0": handover, "labels": [N] long (0: not a joint part, k: part k - 1), "parts": [one dict
     per part: "joint" ("hinge" or "slider"), "axis" [3] (the hinge's axis or the rail's direction),
     "pivot" [3] (zeros on a rail), "base_rotation" [3, 3], "base_translation" [3] (float64,
-    ``physics/joint.py``), "law" (a ``force_law.LAWS`` name), "params" [P] float64, "q0", "v0" (the
-    law's state at t0), "dt_max" (its integration step), "parent" (None, or the index of
-    the part in whose frame it turns; absent, None, in states saved before turning parts); a thrown
+    ``physics/joint.py``), "model" (its coordinate's identified model, ``IdentifiedModel.to_dict``:
+    terms, coefficients, contacts, its state at t0), "parent" (None, or the index of
+    the part in whose frame it turns); a thrown
     part (``"joint": "thrown"``, ``extrapolate/thrown.py``) has instead "axis" (up), "pivot" (its
     centre at t0), "velocity" [3] (its drift along the floor) and "spin" [3]]}``
     (``extrapolate/joints.py``); None: none adopted, or not looked for (``extrapolation.joint_laws``)."""

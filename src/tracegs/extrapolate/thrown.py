@@ -29,6 +29,8 @@ import torch
 
 from ..physics.force_law_fit import FittedLaw, fit_law
 from ..physics.free_body import centre_of_mass, fit_rigid_transform, main_piece
+from ..physics.identify import IdentifiedModel
+from ..physics.sindy import Contact
 from ..physics.so3 import quat_to_axis_angle, rotmat_to_quat
 from .joint_motion import thrown_motion
 
@@ -162,20 +164,30 @@ def _rms(a: torch.Tensor, b: torch.Tensor) -> float:
 
 
 def _stored(fit: dict, t: float) -> dict:
-    """The thrown part of ``fit`` (``fit_thrown``) as stored, from its state at ``t``, its last frame."""
+    """The thrown part of ``fit`` (``fit_thrown``) as stored, from its state at ``t``, its last frame:
+    its height's ``bounce`` law as the identified model it is (``physics/identify.py``: ``q'' = -g``,
+    a contact on the floor with the restitution ``e``)."""
     law = fit["law"]
     q0, v0 = (float(x[0]) for x in law.state_at([t]))
+    g, e, floor = (float(p) for p in law.params)
+    model = IdentifiedModel(
+        [("1", -1)],
+        np.array([[-g]]),
+        (False,),
+        t,
+        np.array([q0]),
+        np.array([v0]),
+        (Contact(0, floor, -1, e),),
+        dt_max=law.dt_max,
+        adopted=True,
+    )
     return {
         "joint": "thrown",
         "axis": torch.from_numpy(fit["axis"]),
         "pivot": fit["centre"],
         "velocity": torch.from_numpy(fit["velocity"]),
         "spin": fit["spin"],
-        "law": law.name,
-        "params": torch.tensor(law.params, dtype=torch.float64),
-        "q0": q0,
-        "v0": v0,
-        "dt_max": law.dt_max,
+        "model": model.to_dict(),
         "parent": None,
     }
 

@@ -12,8 +12,11 @@ bounces on with their restitution. The model continues from the state after the 
 
 Selection is as for every law of the project: the model is fitted without the last
 ``holdout_fraction`` of the samples (the held-out end), from the terms that sparse regression keeps
-down to one term by dropping the least significant (``_Fits.backward``), each set of terms scored by
-its rollout over the held-out end, and the sparsest set within ``tie`` of the best wins; its
+down to one term by dropping the least significant (``_Fits.backward``) and, of one coordinate, from
+the small sets that best fit its smoothed accelerations (``_Fits.small_sets``: over a short span
+``q``, ``sin q``, ``cos q`` and the constant trade places, and dropping one at a time can follow the
+wrong one), each set of terms scored by its rollout over the held-out end, and the sparsest set
+within ``tie`` of the best (then the one of the simplest kinds) wins; its
 constants are then refitted on the whole span. It is *adopted* only when
 its held-out error is below ``margin`` times the baseline's (the learned physics' prediction of the
 held-out end, passed in; moving on at the last velocity when none is) and its residual over the whole
@@ -31,6 +34,7 @@ n: coordinates, F: library terms, T: samples, H: held-out samples. numpy float64
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 
@@ -56,6 +60,11 @@ Array = np.ndarray
 
 MIN_PIECE = 3
 """Fewest samples of a piece of the path between events that the shooting fit uses."""
+SMALL_SETS = 3
+"""Of one coordinate, the sets of each number of library terms up to this one that best fit the
+smoothed accelerations (``SMALL_SHOTS`` of each) are scored on the held-out end besides the nested sets of the
+backward elimination."""
+SMALL_SHOTS = 4
 MIN_REGRESSION = 5
 """Fewest samples of a piece whose smoothed derivatives enter the regression."""
 
@@ -64,7 +73,7 @@ def holdout_split(n_samples: int, holdout_fraction: float = 0.25) -> int:
     """How many of the first samples are fitted; the rest (a ``holdout_fraction``, at least one) are the
     held-out end, the rows of the baseline ``identify`` takes."""
     held = max(1, round(holdout_fraction * n_samples))
-    if n_samples - held < 2 * MIN_REGRESSION:
+    if n_samples - held < MIN_REGRESSION + MIN_PIECE:
         raise ValueError(f"{n_samples} samples are too few to hold out {held} and fit the rest")
     return n_samples - held
 
@@ -95,6 +104,8 @@ class IdentifiedModel:
     """Largest integration step."""
     tried: list = field(default_factory=list)
     """``[{"threshold", "terms", "held_out"}]``: each distinct set of terms and its held-out error."""
+    held_out_path: Array | None = field(default=None, repr=False, compare=False)
+    """[H, n] the chosen terms, fitted without the held-out end, rolled out over it (not saved)."""
 
     @property
     def equations(self) -> list[str]:
@@ -119,6 +130,20 @@ class IdentifiedModel:
         k = (f(x + step, zero) - f(x - step, zero)) / (2 * eps)
         c = (f(x + zero, step) - f(x + zero, -step)) / (2 * eps)
         return k.T, c.T
+
+    @property
+    def active_kinds(self) -> set[str]:
+        """The kinds of the terms with a non-zero coefficient (``TERM_KINDS``)."""
+        return {kind for (kind, _), used in zip(self.terms, (self.coefficients != 0).any(0), strict=True) if used}
+
+    def growth_rate(self, q=None) -> float:
+        """The largest real part of the eigenvalues of the system linearised at rest at ``q``
+        (``linearised``): how fast, in e-folds per unit time, a small departure grows (> 0: an
+        unstable model, a negative stiffness or damping; a passive joint's is <= 0)."""
+        k, c = self.linearised(q)
+        n = len(k)
+        state = np.block([[np.zeros((n, n)), np.eye(n)], [k, c]])
+        return float(np.linalg.eigvals(state).real.max())
 
     def rollout(self, t, q=None, v=None, t_start: float | None = None) -> tuple[Array, Array]:
         """``(q, v)`` [T, n] at the increasing times ``t`` [T] (>= the start) of the state ``q``, ``v`` [n]
@@ -262,6 +287,23 @@ class _Fits:
             self.done[key] = self.path.fit(self.terms, xi, self.dt_max, states)
         return self.done[key]
 
+    def small_sets(self, size: int, count: int) -> list[Array]:
+        """Of each number of terms up to ``size``, the ``count`` sets [1, F] bool of one coordinate's
+        independent terms whose least-squares fit to the smoothed accelerations leaves the smallest
+        residual."""
+        sets = []
+        for k in range(1, size + 1):
+            ranked = []
+            for chosen in itertools.combinations(np.flatnonzero(self.kept), k):
+                theta = self.theta[:, list(chosen)]
+                coef = np.linalg.lstsq(theta, self.target[:, 0], rcond=None)[0]
+                ranked.append((float(np.sum((theta @ coef - self.target[:, 0]) ** 2)), chosen))
+            for _, chosen in sorted(ranked)[:count]:
+                active = np.zeros((1, len(self.terms)), dtype=bool)
+                active[0, list(chosen)] = True
+                sets.append(active)
+        return sets
+
     def _weakest(self, active: Array, significance: Array, significant: float) -> tuple[int, int]:
         """The term to drop next: of the active terms [n, F] not ``significant``, the most complex kind
         (latest in ``TERM_KINDS``), else the least significant."""
@@ -350,15 +392,25 @@ def identify(
 
     # the nested sets of terms on the fitted samples, each scored on the held-out end
     baseline_rms, scored = _rms(baseline, q[n_fit:]), []
-    for active, dropped, (xi, states, *_) in _Fits(held, terms, dt_max).backward(threshold, growth):
-        error = _rms(held.rollout(terms, xi, states[-1], t[n_fit:], dt_max)[0], q[n_fit:])
-        scored.append((active, dropped, int(active.sum()), error))
-    tried = [{"dropped": d, "terms": k, "held_out": _finite(e)} for _, d, k, e in scored]
+    fits = _Fits(held, terms, dt_max)
+    candidates = [(active, dropped, fit[:2]) for active, dropped, fit in fits.backward(threshold, growth)]
+    if n == 1:  # small sets too: over a short span terms trade places (q, sin q, cos q, 1 near rest)
+        seen = {active.tobytes() for active, *_ in candidates}
+        for active in fits.small_sets(SMALL_SETS, SMALL_SHOTS):
+            if active.tobytes() not in seen:
+                candidates.append((active, "", fits(active)[:2]))
+    for active, dropped, (xi, states) in candidates:
+        prediction = held.rollout(terms, xi, states[-1], t[n_fit:], dt_max)[0]
+        scored.append((active, dropped, int(active.sum()), _rms(prediction, q[n_fit:]), prediction))
+    tried = [{"dropped": d, "terms": k, "held_out": _finite(e)} for _, d, k, e, _ in scored]
     if not scored:
         return _verdict(empty, False, "the regression kept no term")
-    best = min(e for *_, e in scored)
+    best = min(v[3] for v in scored)
     good = best * (1 + tie) + 1e-6 * float(np.ptp(q))
-    active, _, _, error = min((v for v in scored if v[3] <= good), key=lambda v: (v[2], v[3]))
+    complexity = np.array([TERM_KINDS.index(kind) for kind, _ in terms])
+    active, _, _, error, prediction = min(  # the fewest terms, then the simplest kinds, then the error
+        (v for v in scored if v[3] <= good), key=lambda v: (v[2], int(complexity @ v[0].sum(0)), v[3])
+    )
 
     # the chosen terms refitted on the whole span
     whole = _Path(t, q, events, len(t))
@@ -371,6 +423,7 @@ def identify(
     )
     model.held_out = {"samples": len(t) - n_fit, "model": _finite(error), "baseline": _finite(baseline_rms)}
     model.residual, model.dt_max, model.tried = rms / motion, dt_max, tried
+    model.held_out_path = prediction
     if not math.isfinite(error) or not np.isfinite(xi).all():
         return _verdict(model, False, "its rollout over the held-out end blows up")
     if not error < margin * baseline_rms:

@@ -157,11 +157,7 @@ def _bounce(terms, xi, q0, v0, q1, v1, h, contact: Contact) -> tuple[Array, Arra
     """The step from ``(q0, v0)`` to ``(q1, v1)`` [B, n] redone for the rows that cross ``contact``: to
     the crossing (the step's fraction by two secant steps), the velocity reversed there, then on."""
     i, d = contact.coordinate, contact.direction
-    rows = (
-        (d * (q1[:, i] - contact.position) > 0)
-        & (d * (q0[:, i] - contact.position) <= 0)
-        & (d * v0[:, i] > 0)
-    )
+    rows = (d * (q1[:, i] - contact.position) > 0) & (d * (q0[:, i] - contact.position) <= 0)
     if not rows.any():
         return q1, v1
     qa, va, hr, x = q0[rows], v0[rows], h[rows], xi[rows]
@@ -176,6 +172,10 @@ def _bounce(terms, xi, q0, v0, q1, v1, h, contact: Contact) -> tuple[Array, Arra
     qc[:, i] = contact.position
     vc[:, i] = -contact.restitution * vc[:, i]
     qe, ve = _rk4(terms, x, qc, vc, (1 - s)[:, None] * hr)
+    # bounced too weakly to leave the surface within the step (the bounces of a restitution below 1
+    # shorten geometrically and end in finite time): at rest on it
+    rest = d * (qe[:, i] - contact.position) > 0
+    qe[rest, i], ve[rest, i] = contact.position, 0.0
     q1, v1 = q1.copy(), v1.copy()
     q1[rows], v1[rows] = qe, ve
     return q1, v1
