@@ -50,6 +50,17 @@ def thrown_motion(part: dict, t0: float, t: float) -> tuple[torch.Tensor, torch.
     return turn, centre - turn @ part["pivot"]
 
 
+def free_motion(part: dict, t0: float, t: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(turn [3, 3], shift [3])``: a stored part on no joint's rigid motion from ``t0`` to ``t``
+    (``unjointed.py``): its centre at ``t0`` (``pivot``) moved along its axes (``basis``) as its
+    model moves its coordinates from ``t0`` to ``t``, the part turned about it at ``spin``."""
+    turn = rodrigues(part["spin"] * (t - t0))
+    model = IdentifiedModel.from_dict(part["model"])
+    moved = model.rollout([max(t, model.t_end)])[0][0] - model.q_end  # along its axes ("basis")
+    centre = part["pivot"] + torch.from_numpy(moved) @ part["basis"]
+    return turn, centre - turn @ part["pivot"]
+
+
 def part_motion(parts: list[dict], k: int, t0: float, t: float) -> tuple[torch.Tensor, torch.Tensor]:
     """``(turn [3, 3], shift [3])``: the rigid motion of joint part ``k`` of ``parts`` from ``t0`` to
     ``t``, ``x -> turn x + shift``. A part with a ``parent`` (``on_frame``) turns on its joint in the
@@ -57,6 +68,8 @@ def part_motion(parts: list[dict], k: int, t0: float, t: float) -> tuple[torch.T
     part's own motion there."""
     if parts[k]["joint"] == "thrown":
         return thrown_motion(parts[k], t0, t)
+    if parts[k]["joint"] == "free":
+        return free_motion(parts[k], t0, t)
     r0, s0, r1, s1 = _ends(parts[k], t)
     turn = r1 @ r0.T
     shift = s1 - turn @ s0

@@ -19,7 +19,9 @@ velocities) moves with that part. A piece that turns on a joint of its own in th
 with a law, adopted or not (``on_frame``: a box spinning on a turntable), is put on that joint, its
 law chosen and backtested as above with the carrier's law carrying it; a carrier whose law is not
 adopted moves only the part it carries. A moving group none of whose pieces is on a joint and that
-bounces on a floor within the span is a thrown part (``thrown.py``). Everything else keeps the learned physics, and the report says
+bounces on a floor within the span is a thrown part (``thrown.py``); one that does not, and moves
+rigidly, gets the identified model of its centre's three coordinates (``unjointed.py``: a disc on
+springs, a puck after an impact). Everything else keeps the learned physics, and the report says
 why. No images.
 
 N: Gaussians, M: a part's Gaussians, T: frames, P: a law's parameters.
@@ -34,7 +36,6 @@ import torch
 
 from ..physics.free_body import fit_rigid_transform, split_rigid
 from ..physics.identify import holdout_split, identify
-from ..physics.sindy import term_name
 from ..physics.joint import (
     fit_hinge,
     fit_slider,
@@ -43,6 +44,7 @@ from ..physics.joint import (
 from .free_bodies import moving_groups
 from .joint_motion import joint_transforms
 from .thrown import choose_thrown
+from .unjointed import choose_unjointed
 
 MIN_FRAMES = 8
 """Fewest frames of f_defo's path up to the handover that a joint law is identified from."""
@@ -121,16 +123,6 @@ def _finite(value: float | None) -> float | None:
     return float(value) if value is not None and math.isfinite(value) else None
 
 
-def _constants(model) -> dict:
-    """An identified model's non-zero coefficients by equation and term, ``{"q0'' <- sin q0": -37.2}``."""
-    return {
-        f"q{i}'' <- {term_name(term)}": _finite(float(c))
-        for i, row in enumerate(model.coefficients)
-        for term, c in zip(model.terms, row, strict=True)
-        if c != 0
-    }
-
-
 class _LearnedBacktest:
     """The learned physics started at f_defo's state at ``t1`` and run to the ``times`` after it (each
     Gaussian's mean; computed once for every part held out from the same frame)."""
@@ -191,16 +183,7 @@ def choose_part_law(
     )
     n = holdout_split(len(t), settings.joint_law_holdout)
     truth = torch.stack([p.detach().double().cpu() for p in path[n:]])
-    entry.update(
-        model=model.equations,
-        constants=_constants(model),
-        events=[round(e.time, 6) for e in model.events],
-        held_out={k: _finite(v) for k, v in model.held_out.items() if k != "samples"},
-        held_out_frames=len(t) - n,
-        residual_of_path=_finite(model.residual),
-        tried=model.tried,
-        verdict=model.why,
-    )
+    entry.update(model.report())
     if model.held_out_path is None or not np.isfinite(model.coefficients).all():
         return None, {**entry, "why": f"{model.why}: the learned physics"}
     # the part's positions on the held-out frames: the model fitted to the frames before them, against
@@ -257,7 +240,7 @@ def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
         pieces = [(group, fit)]
         if fit is None or fit[0] is None or not _fits(fit[0], fit[2], settings):
             if int(whole.sum()) >= MIN_GAUSSIANS:
-                thrown.append((label, whole))
+                thrown.append((label, whole, fit))
             split = split_rigid(x0[group], u[group], 0.0025 * extent).to(moved.device)
             pieces = [
                 (group.clone().index_put_((group,), split == k), None) for k in range(1, int(split.max()) + 1)
@@ -303,11 +286,20 @@ def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
         report[frame["report"]].setdefault("frame_of", []).append(len(parts))
         why = f"on a joint of its own on joint part {frame['index']}: their laws"
         report[i].update({**result, "adopted": True, "why": why, "on": frame["index"]})
-    for label, rows in thrown:  # a group none of whose pieces is on a joint, a ball: on a floor?
+    for label, rows, fit in thrown:  # a group none of whose pieces is on a joint, a ball: on a floor?
         if bool((labels[rows] > 0).any()):
             continue
+        entry = {"group": label, "free_body": int(((groups == label) & free).sum())}
         part, result = choose_thrown([p[rows] for p in path], times, rows, learned, settings)
-        report.append({"group": label, "free_body": int(((groups == label) & free).sum()), **result})
+        report.append({**entry, **result})
+        if part is None and fit is not None and fit[2]["rigid"] <= RIGID_TOLERANCE:
+            # on no joint and on no floor, but rigid: its centre's own model (a disc on springs)
+            truth = torch.stack([p[rows].detach().double().cpu() for p in path])
+            x = x0[rows].detach().double().cpu()
+            part, result = choose_unjointed(
+                *part_transforms(x, list(truth)), x, truth, times, rows, learned, settings
+            )
+            report.append({**entry, **result})
         if part is not None:
             parts.append(part)
             labels[rows] = len(parts)

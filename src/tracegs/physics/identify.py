@@ -134,7 +134,9 @@ class IdentifiedModel:
     @property
     def active_kinds(self) -> set[str]:
         """The kinds of the terms with a non-zero coefficient (``TERM_KINDS``)."""
-        return {kind for (kind, _), used in zip(self.terms, (self.coefficients != 0).any(0), strict=True) if used}
+        return {
+            kind for (kind, _), used in zip(self.terms, (self.coefficients != 0).any(0), strict=True) if used
+        }
 
     def growth_rate(self, q=None) -> float:
         """The largest real part of the eigenvalues of the system linearised at rest at ``q``
@@ -159,6 +161,26 @@ class IdentifiedModel:
             self.terms, self.coefficients[None], q[None], v[None], t - t_start, self.dt_max, self.contacts
         )
         return path[0], speed[0]
+
+    def report(self) -> dict:
+        """What a run's summary says of the model: its equations, its non-zero constants by equation
+        and term (``{"q0'' <- sin q0": -37.2}``), the times of its events, its held-out errors against
+        the baseline's, its residual over the path, the sets of terms tried and the verdict."""
+        return {
+            "model": self.equations,
+            "constants": {
+                f"q{i}'' <- {term_name(term)}": _finite(float(c))
+                for i, row in enumerate(self.coefficients)
+                for term, c in zip(self.terms, row, strict=True)
+                if c != 0
+            },
+            "events": [round(e.time, 6) for e in self.events],
+            "held_out": {k: _finite(v) for k, v in self.held_out.items() if k != "samples"},
+            "held_out_frames": self.held_out.get("samples"),
+            "residual_of_path": _finite(self.residual),
+            "tried": self.tried,
+            "verdict": self.why,
+        }
 
     def to_dict(self) -> dict:
         """The model as plain JSON-able values (``from_dict`` reads it back)."""
@@ -202,8 +224,8 @@ class IdentifiedModel:
         )
 
 
-def _finite(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
+def _finite(x: float | None) -> float | None:
+    return float(x) if x is not None and math.isfinite(x) else None
 
 
 def _rms(a: Array, b: Array) -> float:
@@ -308,11 +330,13 @@ class _Fits:
         """The term to drop next: of the active terms [n, F] not ``significant``, the most complex kind
         (latest in ``TERM_KINDS``), else the least significant."""
         complexity = np.array([TERM_KINDS.index(kind) for kind, _ in self.terms], dtype=float)
+        significance = np.nan_to_num(significance, nan=0.0, posinf=np.finfo(float).max)
         doubtful = active & (significance < significant)
-        if doubtful.any():
-            rank = np.where(doubtful, complexity[None] - significance / (significant + 1.0), -np.inf)
-            return np.unravel_index(np.argmax(rank), active.shape)
-        return np.unravel_index(np.argmin(np.where(active, significance, np.inf)), active.shape)
+        chosen = doubtful if doubtful.any() else active
+        rank = np.broadcast_to(complexity, active.shape) if doubtful.any() else np.zeros(active.shape)
+        rank = rank - significance / (significant + 1.0)  # (only the active terms are candidates)
+        candidates = np.argwhere(chosen)
+        return tuple(candidates[np.argmax(rank[chosen])])
 
     def backward(self, threshold: float, growth: float, significant: float = 25.0):
         """The nested sets of terms ``[(active, dropped, (xi, states, rms, significance))]``: from those
