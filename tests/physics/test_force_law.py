@@ -16,10 +16,7 @@ from tracegs.physics.force_law import (
     spring_damper_solution,
 )
 from tracegs.physics.force_law_fit import (
-    backtest,
-    choose_law,
     fit_law,
-    hold_velocity_error,
     smoothed_derivatives,
 )
 
@@ -120,47 +117,6 @@ def test_friction_pendulum_and_bounce_constants_recovered_from_exact_samples():
     assert fit["g"] == pytest.approx(9.81, rel=1e-3)
     assert fit["e"] == pytest.approx(0.7, rel=1e-3)
     assert fit["floor"] == pytest.approx(-0.1, abs=1e-3)
-
-
-@pytest.mark.parametrize(
-    ("truth", "q"),
-    [
-        ("constant", constant_acceleration_solution(0.0, 1.0, -1.5, T)),
-        ("friction_stop", friction_stop_solution(0.1, 2.0, 2.4, T)),  # stops at 0.83, in the held-out end
-        ("spring_damper", spring_damper_solution(1.0, 0.0, 60.0, 1.5, 0.2, T)),
-        ("pendulum", pendulum_solution(2.0, 40.0, 0.0, T)),
-    ],
-)
-def test_selection_picks_the_true_law(truth, q):
-    choice = choose_law(T, q)
-    assert choice.fitted.name == truth, choice.held_out
-    assert choice.backtest.explains
-    assert set(choice.held_out) == {"constant", "friction_stop", "spring_damper", "pendulum"}
-
-
-def test_selection_on_noisy_samples_and_the_prediction_of_the_future():
-    rng = np.random.default_rng(1)
-    k, c, q_rest = 60.0, 1.5, 0.0
-    omega = np.sqrt(k - c * c / 4)
-    future = T[-1] + np.linspace(0, np.pi / omega, 20)  # a further half period
-    q = spring_damper_solution(1.0, 0.0, k, c, q_rest, T)
-    choice = choose_law(T, q + 0.005 * rng.standard_normal(len(T)))
-    assert choice.fitted.name == "spring_damper"
-    truth = spring_damper_solution(1.0, 0.0, k, c, q_rest, future)
-    assert np.abs(choice.fitted.predict(future).numpy() - truth).max() < 0.01  # 1% of the amplitude
-    q = constant_acceleration_solution(0.0, 1.0, -1.5, T)
-    assert choose_law(T, q + 0.005 * rng.standard_normal(len(T))).fitted.name == "constant"
-
-
-def test_backtest_falls_back_where_no_law_explains_the_end():
-    braking = constant_acceleration_solution(0.0, 1.0, -1.0, np.minimum(T, 0.5))
-    coasting = braking + 0.5 * np.maximum(T - 0.5, 0.0)  # the brake let go at 0.5: no law foresees it
-    result = backtest(T, coasting, "constant")
-    assert not result.explains
-    assert result.baseline_rms == pytest.approx(hold_velocity_error(T, coasting))
-    assert result.baseline_rms < 1e-9 < result.law_rms
-    q = spring_damper_solution(1.0, 0.0, 60.0, 1.5, 0.2, T)
-    assert backtest(T, q, "spring_damper").explains
 
 
 def test_prediction_from_another_state_and_in_any_order():

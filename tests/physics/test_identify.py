@@ -9,6 +9,12 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
 from tracegs.physics.events import detect_events
+from tracegs.physics.force_law import (
+    constant_acceleration_solution,
+    friction_stop_solution,
+    pendulum_solution,
+    spring_damper_solution,
+)
 from tracegs.physics.identify import IdentifiedModel, holdout_split, identify
 
 FPS = 30.0
@@ -192,3 +198,23 @@ def test_serialises_to_json_and_back():
     assert back.equations == model.equations and back.why == model.why and back.contacts == model.contacts
     later = t[-1] + np.arange(1, 20) / FPS
     assert np.array_equal(back.rollout(later)[0], model.rollout(later)[0])
+
+
+@pytest.mark.parametrize(
+    ("law", "path"),
+    [
+        ("constant", lambda s: constant_acceleration_solution(0.0, 1.0, -1.5, s)),
+        ("friction_stop", lambda s: friction_stop_solution(0.1, 2.0, 3.0, s)),  # stops at 0.67
+        ("spring_damper", lambda s: spring_damper_solution(1.0, 0.0, 60.0, 1.5, 0.2, s)),
+        ("pendulum", lambda s: pendulum_solution(2.0, 40.0, 0.0, s)),
+    ],
+)
+def test_the_force_laws_are_special_cases(law, path):
+    """The laws of ``physics/force_law.py`` are terms of the one model: identified from a span of each
+    law's closed form (60 frames), its rollout matches the closed form on to twice the span."""
+    t, future = np.linspace(0.0, 0.75, 46), np.linspace(0.75, 1.5, 16)
+    model = identify(t, path(t), angular=(law == "pendulum",))
+    assert model.adopted, model.why
+    amplitude = float(np.ptp(path(np.concatenate([t, future]))))
+    error = np.abs(model.rollout(future)[0][:, 0] - path(future)).max()
+    assert error < 0.01 * amplitude, (model.equations, error)

@@ -1,5 +1,6 @@
-"""Identifying a force law (``physics/force_law.py``) from samples of a coordinate ``q(t)``, and
-choosing among the laws by how well each predicts the end of the span from its beginning.
+"""Fitting one force law of known form (``physics/force_law.py``) to samples of a coordinate ``q(t)``:
+a thrown part's ``bounce`` (``extrapolate/thrown.py``); the model of a part's coordinates whose form
+is not known is identified from a library of terms instead (``physics/identify.py``).
 
 Identification is in two steps. First, a smoothing spline through the samples (its smoothness chosen
 by generalised cross-validation) gives ``q'`` and ``q''``, and every law but the piecewise ones is
@@ -21,10 +22,6 @@ import numpy as np
 import torch
 
 from .force_law import LAWS, ForceLaw, integrate
-
-DEFAULT_LAWS = ("constant", "friction_stop", "spring_damper", "pendulum")
-"""The laws ``choose_law`` tries unless told, simplest first; ``bounce`` only where a floor makes sense
-(a translation along gravity)."""
 
 
 def _array(x) -> np.ndarray:
@@ -146,88 +143,3 @@ def _split(t, q, holdout_fraction: float) -> int:
     if n - held < 3:
         raise ValueError(f"{n} samples are too few to hold out {held} and fit the rest")
     return n - held
-
-
-def held_out_error(t, q, name: str, holdout_fraction: float = 0.25) -> float:
-    """RMS error on the last ``holdout_fraction`` of the samples of the law ``name`` fitted to the rest
-    and integrated on from there."""
-    return _held_out_fit(_array(t), _array(q), name, holdout_fraction)[1]
-
-
-def _held_out_fit(
-    t: np.ndarray, q: np.ndarray, name: str, holdout_fraction: float
-) -> tuple[FittedLaw, float]:
-    """``held_out_error``'s fit of ``name`` to the first samples, and its RMS error on the rest."""
-    n = _split(t, q, holdout_fraction)
-    fitted = fit_law(t[:n], q[:n], name)
-    return fitted, float(np.sqrt(np.mean((fitted.predict(t[n:]).numpy() - q[n:]) ** 2)))
-
-
-def hold_velocity_error(t, q, holdout_fraction: float = 0.25, samples: int = 4) -> float:
-    """RMS error on the last ``holdout_fraction`` of the samples of no physics: the coordinate moving on
-    at its last velocity, a line fitted to the last ``samples`` samples before them."""
-    t, q = _array(t), _array(q)
-    n = _split(t, q, holdout_fraction)
-    k = min(max(samples, 2), n)
-    slope, intercept = np.polyfit(t[n - k : n], q[n - k : n], 1)
-    return float(np.sqrt(np.mean((slope * t[n:] + intercept - q[n:]) ** 2)))
-
-
-@dataclass(frozen=True)
-class Backtest:
-    """A law's held-out error against no physics' (``hold_velocity_error``) on the end of a span."""
-
-    name: str
-    law_rms: float
-    baseline_rms: float
-
-    @property
-    def explains(self) -> bool:
-        """Whether the law predicts the held-out end at least as well as moving on at the last velocity."""
-        return self.law_rms <= self.baseline_rms
-
-
-def backtest(t, q, name: str, holdout_fraction: float = 0.25) -> Backtest:
-    """How the law ``name``, fitted to the beginning of the samples, predicts their end, against no
-    physics: the caller keeps its own prediction where ``explains`` is false."""
-    return Backtest(
-        name, held_out_error(t, q, name, holdout_fraction), hold_velocity_error(t, q, holdout_fraction)
-    )
-
-
-@dataclass(frozen=True)
-class LawChoice:
-    """The chosen law refitted on the whole span, every candidate's held-out RMS error, and the chosen
-    law's backtest against no physics."""
-
-    fitted: FittedLaw
-    held_out: dict[str, float]
-    backtest: Backtest
-    held_out_fit: FittedLaw
-    """The chosen law fitted without the held-out samples (the fit ``held_out`` scores)."""
-    fitted_samples: int
-    """How many of the first samples ``held_out_fit`` was fitted to (the rest were held out)."""
-
-
-def choose_law(
-    t, q, laws: tuple[str, ...] = DEFAULT_LAWS, holdout_fraction: float = 0.25, tie: float = 0.05
-) -> LawChoice:
-    """The law among ``laws`` that best predicts the last ``holdout_fraction`` of the samples ``q`` [T]
-    at the times ``t`` [T] when fitted to the rest (``held_out_error``), refitted on all of them. A law
-    within ``tie`` (relative) of the best error, or within 1e-6 of the samples' range of it, counts as
-    as good, and the first such in ``laws`` order wins: the simpler law, when ``laws`` is simplest
-    first (as ``DEFAULT_LAWS`` and ``LAWS`` are)."""
-    t, q = _array(t), _array(q)
-    fits = {name: _held_out_fit(t, q, name, holdout_fraction) for name in laws}
-    held = {name: error for name, (_, error) in fits.items()}
-    best = min(held.values())
-    good_enough = best * (1 + tie) + 1e-6 * float(np.ptp(q))
-    name = next(n for n in laws if held[n] <= good_enough)
-    baseline = hold_velocity_error(t, q, holdout_fraction)
-    return LawChoice(
-        fit_law(t, q, name),
-        held,
-        Backtest(name, held[name], baseline),
-        fits[name][0],
-        _split(t, q, holdout_fraction),
-    )

@@ -67,6 +67,8 @@ backward elimination."""
 SMALL_SHOTS = 4
 MIN_REGRESSION = 5
 """Fewest samples of a piece whose smoothed derivatives enter the regression."""
+AT_REST = 0.02
+"""A smoothed velocity below this fraction of the path's largest is rest in the regression."""
 
 
 def holdout_split(n_samples: int, holdout_fraction: float = 0.25) -> int:
@@ -251,8 +253,18 @@ class _Path:
         self.contacts = contacts_of([e for e in events if e.after < stop], q[:stop])
 
     def regression(self, terms: list[Term]) -> tuple[Array, Array]:
-        """``(theta [T, F], q'' [T, n])`` over the pieces long enough to smooth."""
-        rows = [(evaluate(terms, s[0], s[1]), s[2]) for _, _, s in self.pieces if s is not None]
+        """``(theta [T, F], q'' [T, n])`` over the pieces long enough to smooth; a smoothed velocity
+        within ``AT_REST`` of the path's largest counts as rest (``sign q'`` of a part that has stopped
+        is 0, not the sign of the smoothing's ripple)."""
+        smoothed = [s for _, _, s in self.pieces if s is not None]
+        top = max((float(np.abs(s[1]).max()) for s in smoothed), default=0.0)
+        rows = []
+        for q, v, a in smoothed:
+            theta = evaluate(terms, q, v)
+            for f, (kind, i) in enumerate(terms):
+                if kind == "sign":
+                    theta[:, f] = np.where(np.abs(v[:, i]) < AT_REST * top, 0.0, theta[:, f])
+            rows.append((theta, a))
         if not rows:
             raise ValueError("no piece between the events is long enough to fit")
         return np.concatenate([r[0] for r in rows]), np.concatenate([r[1] for r in rows])
@@ -311,13 +323,16 @@ class _Fits:
 
     def small_sets(self, size: int, count: int) -> list[Array]:
         """Of each number of terms up to ``size``, the ``count`` sets [1, F] bool of one coordinate's
-        independent terms whose least-squares fit to the smoothed accelerations leaves the smallest
-        residual."""
+        linearly independent terms whose least-squares fit to the smoothed accelerations leaves the
+        smallest residual. Terms that are one another over the fitted span (``1`` and ``sign q'`` of
+        a part that has not stopped yet) each get their own set: the held-out end tells them apart."""
         sets = []
         for k in range(1, size + 1):
             ranked = []
-            for chosen in itertools.combinations(np.flatnonzero(self.kept), k):
+            for chosen in itertools.combinations(range(len(self.terms)), k):
                 theta = self.theta[:, list(chosen)]
+                if np.linalg.matrix_rank(theta) < k:  # (terms the one can stand for the other: 1, sign q')
+                    continue
                 coef = np.linalg.lstsq(theta, self.target[:, 0], rcond=None)[0]
                 ranked.append((float(np.sum((theta @ coef - self.target[:, 0]) ** 2)), chosen))
             for _, chosen in sorted(ranked)[:count]:

@@ -153,6 +153,30 @@ def _rk4(terms: list[Term], xi: Array, q: Array, v: Array, h: Array) -> tuple[Ar
     return rk4_step(lambda q, v, x: _acceleration(terms, x, q, v), q, v, xi, h)
 
 
+def _stick(terms: list[Term], xi: Array, q0, v0, q1, v1, h) -> tuple[Array, Array]:
+    """The step from ``(q0, v0)`` to ``(q1, v1)`` [B, n] with Coulomb friction (a ``sign q_i'`` term):
+    a coordinate at rest, or whose velocity reaches zero within the step (where: its velocity taken as
+    linear over the step), stays there while the rest of its acceleration is within the friction's
+    (it sticks); RK4 across ``sign``'s jump would chatter about the stop."""
+    friction = np.zeros(xi.shape[:2])  # [B, n] each coordinate's coefficient of its own sign q_i'
+    for f, (kind, i) in enumerate(terms):
+        if kind == "sign":
+            friction[:, i] = np.abs(xi[:, i, f])
+    if not friction.any():
+        return q1, v1
+    sign_free = xi * np.array([kind != "sign" for kind, _ in terms])
+    crossed = (friction > 0) & (v0 * v1 < 0)
+    s = np.where(crossed, v0 / np.where(crossed, v0 - v1, 1.0), 1.0)  # the step's fraction to v = 0
+    stop = np.where(crossed, q0 + 0.5 * v0 * s * h, q1)
+    resting = crossed | ((friction > 0) & (v0 == 0))
+    if resting.any():
+        at = np.where(crossed, stop, q0)
+        push = _acceleration(terms, sign_free, at, np.where(resting, 0.0, v0))  # the rest, at rest
+        held = resting & (np.abs(push) <= friction)
+        q1, v1 = np.where(held, at, q1), np.where(held, 0.0, v1)
+    return q1, v1
+
+
 def _bounce(terms, xi, q0, v0, q1, v1, h, contact: Contact) -> tuple[Array, Array]:
     """The step from ``(q0, v0)`` to ``(q1, v1)`` [B, n] redone for the rows that cross ``contact``: to
     the crossing (the step's fraction by two secant steps), the velocity reversed there, then on."""
@@ -201,7 +225,7 @@ def integrate(
             steps = max(0, math.ceil((target - now) / dt_max - 1e-9))
             h = np.full((len(q), 1), (target - now) / max(steps, 1))
             for _ in range(steps):
-                q1, v1 = _rk4(terms, xi, q, v, h)
+                q1, v1 = _stick(terms, xi, q, v, *_rk4(terms, xi, q, v, h), h)
                 for contact in contacts:
                     q1, v1 = _bounce(terms, xi, q, v, q1, v1, h, contact)
                 q, v = q1, v1
