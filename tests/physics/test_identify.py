@@ -1,11 +1,13 @@
 """The identified motion model (physics/identify.py) against known dynamics: the constants of exact and
 noisy paths, the chosen terms, the contacts, the verdict, and the rollout against closed forms."""
 
+import io
 import json
 
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
+import torch
 from scipy.linalg import expm
 
 from tracegs.physics.events import detect_events
@@ -194,8 +196,13 @@ def test_serialises_to_json_and_back():
     t = np.arange(40) / FPS
     q, _ = _bounce(0.7, t)
     model = identify(t, q)
+    assert model.events  # (their times are where two quadratics meet: NumPy scalars until saved)
     back = IdentifiedModel.from_dict(json.loads(json.dumps(model.to_dict())))
     assert back.equations == model.equations and back.why == model.why and back.contacts == model.contacts
+    buffer = io.BytesIO()  # a run's state is read back without unpickling code
+    torch.save(model.to_dict(), buffer)
+    buffer.seek(0)
+    assert torch.load(buffer, weights_only=True) == json.loads(json.dumps(model.to_dict()))
     later = t[-1] + np.arange(1, 20) / FPS
     assert np.array_equal(back.rollout(later)[0], model.rollout(later)[0])
 

@@ -185,25 +185,28 @@ class IdentifiedModel:
         }
 
     def to_dict(self) -> dict:
-        """The model as plain JSON-able values (``from_dict`` reads it back)."""
-        return {
-            "equations": self.equations,
-            "terms": [[kind, i] for kind, i in self.terms],
-            "coefficients": self.coefficients.tolist(),
-            "angular": list(self.angular),
-            "t_end": self.t_end,
-            "q_end": self.q_end.tolist(),
-            "v_end": self.v_end.tolist(),
-            "contacts": [vars(c) for c in self.contacts],
-            "events": [e.to_dict() for e in self.events],
-            "threshold": self.threshold,
-            "held_out": dict(self.held_out),
-            "residual": _finite(self.residual),
-            "adopted": self.adopted,
-            "why": self.why,
-            "dt_max": self.dt_max,
-            "tried": list(self.tried),
-        }
+        """The model as plain JSON-able values (``from_dict`` reads it back): numbers, strings, lists and
+        dicts only (no NumPy scalar), as ``torch.load(weights_only=True)`` reads a run's state."""
+        return _plain(
+            {
+                "equations": self.equations,
+                "terms": [[kind, i] for kind, i in self.terms],
+                "coefficients": self.coefficients.tolist(),
+                "angular": list(self.angular),
+                "t_end": self.t_end,
+                "q_end": self.q_end.tolist(),
+                "v_end": self.v_end.tolist(),
+                "contacts": [vars(c) for c in self.contacts],
+                "events": [e.to_dict() for e in self.events],
+                "threshold": self.threshold,
+                "held_out": dict(self.held_out),
+                "residual": _finite(self.residual),
+                "adopted": self.adopted,
+                "why": self.why,
+                "dt_max": self.dt_max,
+                "tried": list(self.tried),
+            }
+        )
 
     @classmethod
     def from_dict(cls, d: dict) -> IdentifiedModel:
@@ -224,6 +227,15 @@ class IdentifiedModel:
             float(d["dt_max"]),
             list(d["tried"]),
         )
+
+
+def _plain(value):
+    """``value`` with every NumPy scalar in its dicts, lists and tuples made a Python number."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    return value.item() if isinstance(value, np.generic) else value
 
 
 def _finite(x: float | None) -> float | None:
