@@ -203,6 +203,10 @@ def test_serialises_to_json_and_back():
     torch.save(model.to_dict(), buffer)
     buffer.seek(0)
     assert torch.load(buffer, weights_only=True) == json.loads(json.dumps(model.to_dict()))
+    buffer = io.BytesIO()  # and so is what a run's summary says of it
+    torch.save(model.report(), buffer)
+    buffer.seek(0)
+    assert torch.load(buffer, weights_only=True)["events"] == model.report()["events"]
     later = t[-1] + np.arange(1, 20) / FPS
     assert np.array_equal(back.rollout(later)[0], model.rollout(later)[0])
 

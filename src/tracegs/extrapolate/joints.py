@@ -19,9 +19,9 @@ velocities) moves with that part. A piece that turns on a joint of its own in th
 with a law, adopted or not (``on_frame``: a box spinning on a turntable), is put on that joint, its
 law chosen and backtested as above with the carrier's law carrying it; a carrier whose law is not
 adopted moves only the part it carries. A moving group none of whose pieces is on a joint and that
-bounces on a floor within the span is a thrown part (``thrown.py``); one that does not, and moves
-rigidly, gets the identified model of its centre's three coordinates (``unjointed.py``: a disc on
-springs, a puck after an impact). Everything else keeps the learned physics, and the report says
+bounces on a floor within the span is a thrown part (``thrown.py``); one that does not gets the
+identified model of its centre's coordinates (``unjointed.py``: a disc on springs, a puck after an
+impact). Everything else keeps the learned physics, and the report says
 why. No images.
 
 N: Gaussians, M: a part's Gaussians, T: frames, P: a law's parameters.
@@ -292,8 +292,9 @@ def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
         entry = {"group": label, "free_body": int(((groups == label) & free).sum())}
         part, result = choose_thrown([p[rows] for p in path], times, rows, learned, settings)
         report.append({**entry, **result})
-        if part is None and fit is not None and fit[2]["rigid"] <= RIGID_TOLERANCE:
-            # on no joint and on no floor, but rigid: its centre's own model (a disc on springs)
+        if part is None and fit is not None:
+            # on no joint and on no floor: its centre's own model (a disc on springs, a rolling ball
+            # whose Gaussians slide over it, so that it moves rigidly only about its centre)
             truth = torch.stack([p[rows].detach().double().cpu() for p in path])
             x = x0[rows].detach().double().cpu()
             part, result = choose_unjointed(

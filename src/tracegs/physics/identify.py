@@ -167,22 +167,25 @@ class IdentifiedModel:
     def report(self) -> dict:
         """What a run's summary says of the model: its equations, its non-zero constants by equation
         and term (``{"q0'' <- sin q0": -37.2}``), the times of its events, its held-out errors against
-        the baseline's, its residual over the path, the sets of terms tried and the verdict."""
-        return {
-            "model": self.equations,
-            "constants": {
-                f"q{i}'' <- {term_name(term)}": _finite(float(c))
-                for i, row in enumerate(self.coefficients)
-                for term, c in zip(self.terms, row, strict=True)
-                if c != 0
-            },
-            "events": [round(e.time, 6) for e in self.events],
-            "held_out": {k: _finite(v) for k, v in self.held_out.items() if k != "samples"},
-            "held_out_frames": self.held_out.get("samples"),
-            "residual_of_path": _finite(self.residual),
-            "tried": self.tried,
-            "verdict": self.why,
-        }
+        the baseline's, its residual over the path, the sets of terms tried and the verdict (plain
+        data, as ``to_dict``)."""
+        return _plain(
+            {
+                "model": self.equations,
+                "constants": {
+                    f"q{i}'' <- {term_name(term)}": _finite(float(c))
+                    for i, row in enumerate(self.coefficients)
+                    for term, c in zip(self.terms, row, strict=True)
+                    if c != 0
+                },
+                "events": [round(e.time, 6) for e in self.events],
+                "held_out": {k: _finite(v) for k, v in self.held_out.items() if k != "samples"},
+                "held_out_frames": self.held_out.get("samples"),
+                "residual_of_path": _finite(self.residual),
+                "tried": self.tried,
+                "verdict": self.why,
+            }
+        )
 
     def to_dict(self) -> dict:
         """The model as plain JSON-able values (``from_dict`` reads it back): numbers, strings, lists and
