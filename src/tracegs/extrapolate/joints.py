@@ -19,9 +19,9 @@ velocities) moves with that part. A piece that turns on a joint of its own in th
 with a law, adopted or not (``on_frame``: a box spinning on a turntable), is put on that joint, its
 law chosen and backtested as above with the carrier's law carrying it; a carrier whose law is not
 adopted moves only the part it carries. A moving group none of whose pieces is on a joint and that
-bounces on a floor within the span is a thrown part (``thrown.py``); one that does not gets the
-identified model of its centre's coordinates (``unjointed.py``: a disc on springs, a puck after an
-impact). Everything else keeps the learned physics, and the report says
+gets the identified model of its centre's coordinates (``unjointed.py``: a disc on springs, a puck
+after an impact), or where that is not adopted, bounces on a floor if it did within the span (a thrown
+part, ``thrown.py``). Everything else keeps the learned physics, and the report says
 why. No images.
 
 N: Gaussians, M: a part's Gaussians, T: frames, P: a law's parameters.
@@ -240,7 +240,7 @@ def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
         pieces = [(group, fit)]
         if fit is None or fit[0] is None or not _fits(fit[0], fit[2], settings):
             if int(whole.sum()) >= MIN_GAUSSIANS:
-                thrown.append((label, whole, fit))
+                thrown.append((label, whole))
             split = split_rigid(x0[group], u[group], 0.0025 * extent).to(moved.device)
             pieces = [
                 (group.clone().index_put_((group,), split == k), None) for k in range(1, int(split.max()) + 1)
@@ -286,20 +286,18 @@ def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
         report[frame["report"]].setdefault("frame_of", []).append(len(parts))
         why = f"on a joint of its own on joint part {frame['index']}: their laws"
         report[i].update({**result, "adopted": True, "why": why, "on": frame["index"]})
-    for label, rows, fit in thrown:  # a group none of whose pieces is on a joint, a ball: on a floor?
+    for label, rows in thrown:  # a group none of whose pieces is on a joint: its centre's model
         if bool((labels[rows] > 0).any()):
             continue
         entry = {"group": label, "free_body": int(((groups == label) & free).sum())}
-        part, result = choose_thrown([p[rows] for p in path], times, rows, learned, settings)
+        truth = torch.stack([p[rows].detach().double().cpu() for p in path])
+        x = x0[rows].detach().double().cpu()
+        part, result = choose_unjointed(
+            *part_transforms(x, list(truth)), x, truth, times, rows, learned, settings
+        )
         report.append({**entry, **result})
-        if part is None and fit is not None:
-            # on no joint and on no floor: its centre's own model (a disc on springs, a rolling ball
-            # whose Gaussians slide over it, so that it moves rigidly only about its centre)
-            truth = torch.stack([p[rows].detach().double().cpu() for p in path])
-            x = x0[rows].detach().double().cpu()
-            part, result = choose_unjointed(
-                *part_transforms(x, list(truth)), x, truth, times, rows, learned, settings
-            )
+        if part is None:  # or one that bounces on a floor (f_defo rounds the bounce: no velocity jump)
+            part, result = choose_thrown([p[rows] for p in path], times, rows, learned, settings)
             report.append({**entry, **result})
         if part is not None:
             parts.append(part)
