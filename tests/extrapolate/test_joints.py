@@ -167,7 +167,9 @@ def test_a_part_spinning_on_a_turning_part_turns_on_its_joint_in_that_parts_fram
     )
     predictor = calibrate(model, T_MAX, settings, extent=2.0)
     state = predictor.state
-    by_rows = {e["gaussians"]: e for e in state.report["joint_laws"]}
+    by_rows = {e["gaussians"]: e for e in state.report["joint_laws"] if "chain" not in e}
+    (chain,) = (e for e in state.report["joint_laws"] if "chain" in e)  # two steady turns: no system
+    assert not chain["adopted"] and "constant" in chain["why"]
     assert len(by_rows) == 2
     disc, part = by_rows[int(table.sum())], by_rows[int(spinning.sum())]
     assert "constant" in disc["why"] and not disc["adopted"] and disc["frame_of"] == [2]
@@ -186,3 +188,47 @@ def test_a_part_spinning_on_a_turning_part_turns_on_its_joint_in_that_parts_fram
         )
         assert float(alike.abs().min()) > 1 - 1e-5  # the same turn (q and -q are one)
         torch.testing.assert_close(got["means"][table | still], start[table | still])
+
+
+CHAIN_K = np.array([[40.0, -12.0], [-30.0, 50.0]])  # two hinges whose angles drive each other
+CHAIN_START = np.array([0.5, -0.2, 0.0, 0.0])
+
+
+def chain_angles(t: float) -> np.ndarray:
+    """[2] the carrier's angle and the link's angle relative to it: ``q'' = -K q`` in closed form."""
+    from scipy.linalg import expm
+
+    system = np.block([[np.zeros((2, 2)), np.eye(2)], [-CHAIN_K, np.zeros((2, 2))]])
+    return (expm(system * t) @ CHAIN_START)[:2]
+
+
+def test_a_chain_of_two_hinges_is_identified_as_one_system():
+    """A link on a hinge at the end of a part on a hinge, their angles coupled (each drives the
+    other): the link is put on its joint in the carrier's frame, and the two angles identified
+    together; after the handover both move as the closed form does, which neither angle's model with
+    the other's path unknown foresees."""
+    elbow = PIVOT + torch.tensor([0.0, -0.8, 0.0], dtype=torch.float64)
+
+    def carrier(t: float):
+        return about(float(chain_angles(t)[0]), PIVOT)
+
+    def link(t: float):
+        q1, q2 = chain_angles(t)
+        (r1, s1), (r2, s2) = about(float(q1), PIVOT), about(float(q2), elbow)
+        return r1 @ r2, r1 @ s2 + s1
+
+    centres = [tuple((PIVOT + torch.tensor([0.0, -0.3, 0.0], dtype=torch.float64)).tolist())]
+    centres += [tuple((elbow + torch.tensor([0.0, -0.3, 0.0], dtype=torch.float64)).tolist()), (0.9, 0.9, 0.0)]
+    model, settings, (first, second, still) = blob_model(centres, [carrier, link, None])
+    model.frame_interval.fill_(1 / 60)
+    predictor = calibrate(model, T_MAX, settings, extent=2.0)
+    chain = next(e for e in predictor.state.report["joint_laws"] if "chain" in e)
+    assert chain["adopted"], chain["why"]
+    assert chain["position_rms"]["chain"] < 0.1 * chain["position_rms"]["own"]
+    parts = predictor.state.joint_laws["parts"]
+    assert [p.get("coordinate") for p in parts] == [0, 1] and parts[1]["parent"] == 0
+    for t in (T_MAX, 1.0, 1.25):
+        got, want = predictor.gaussians_at(t)["means"], model.deform(t)["means"]
+        for rows in (first, second):
+            error = float((got[rows] - want[rows]).norm(dim=1).max())
+            assert error < 5e-3, (t, error)

@@ -23,14 +23,15 @@ def joint_transforms(joint: dict, q: torch.Tensor) -> tuple[torch.Tensor, torch.
 
 def coordinate_at(part: dict, t: float) -> float:
     """A stored part's coordinate ``q`` at ``t`` (>= the handover): its identified model
-    (``IdentifiedModel.to_dict``) integrated from its state at the handover."""
+    (``IdentifiedModel.to_dict``) integrated from its state at the handover; a chain's link
+    (``chain.py``) is its model's ``coordinate``."""
     model = IdentifiedModel.from_dict(part["model"])
-    return float(model.rollout([max(t, model.t_end)])[0][0, 0])
+    return float(model.rollout([max(t, model.t_end)])[0][0, part.get("coordinate", 0)])
 
 
 def _start(part: dict) -> float:
     """A stored part's coordinate at the handover."""
-    return float(part["model"]["q_end"][0])
+    return float(part["model"]["q_end"][part.get("coordinate", 0)])
 
 
 def _ends(part: dict, t: float) -> tuple[torch.Tensor, ...]:

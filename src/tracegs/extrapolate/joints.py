@@ -41,6 +41,7 @@ from ..physics.joint import (
     fit_slider,
     refine_hinge,
 )
+from .chain import choose_chain, pooled
 from .free_bodies import moving_groups
 from .joint_motion import joint_transforms
 from .thrown import choose_thrown
@@ -241,7 +242,7 @@ def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
         if fit is None or fit[0] is None or not _fits(fit[0], fit[2], settings):
             if int(whole.sum()) >= MIN_GAUSSIANS:
                 thrown.append((label, whole))
-            split = split_rigid(x0[group], u[group], 0.0025 * extent).to(moved.device)
+            split = split_parts(x0, u, path, times, group, 0.0025 * extent).to(moved.device)
             pieces = [
                 (group.clone().index_put_((group,), split == k), None) for k in range(1, int(split.max()) + 1)
             ]
@@ -256,7 +257,7 @@ def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
             frame = result.pop("_frame", None)  # (its law, adopted or not, as a frame for another part)
             report.append({**entry, **result})
             if frame is not None:
-                frames.append({**frame, "report": len(report) - 1, "index": None})
+                frames.append({**frame, "report": len(report) - 1, "index": None, "rows": rows})
             if part is not None:
                 parts.append(part)
                 paths.append(frame["q"])
@@ -273,17 +274,31 @@ def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
             report[i].update(adopted=True, why=f"moves with joint part {k + 1}: its law", joins=k + 1)
         else:
             turning.append((rows, i))
+    truth = torch.stack([p.detach().double().cpu() for p in path])
     for rows, i in turning:  # a part on a joint of its own on a turning part (a box on a turntable)
         found = on_frame([p[rows] for p in path], times, rows, learned, settings, frames, i)
         if found is None:
             continue
-        part, result, frame = found
-        if frame["index"] is None:  # the carrier's law moves the part, not the carrier's own Gaussians
+        part, result, frame, link = found
+        carrier = report[frame["report"]]
+        own = [(carrier["position_rms"]["law" if frame["index"] else "learned"], int(frame["rows"].sum()))]
+        link = {**link, "rows": rows, "report": i}
+        own.append((result["position_rms"]["law"], int(rows.sum())))
+        pair, chained = choose_chain(frame, link, truth, times, learned, settings, pooled(own))
+        report.append(chained)
+        if pair is not None:  # one system: the carrier's Gaussians move by it too
+            part = pair[1]
+            if frame["index"] is None:
+                parts.append(pair[0])
+                frame["index"] = len(parts)
+            parts[frame["index"] - 1] = pair[0]
+            labels[frame["rows"]] = frame["index"]
+        elif frame["index"] is None:  # the carrier's law moves the part, not the carrier's own Gaussians
             parts.append(frame["part"])
             frame["index"] = len(parts)
         parts.append({**part, "parent": frame["index"] - 1})
         labels[rows] = len(parts)
-        report[frame["report"]].setdefault("frame_of", []).append(len(parts))
+        carrier.setdefault("frame_of", []).append(len(parts))
         why = f"on a joint of its own on joint part {frame['index']}: their laws"
         report[i].update({**result, "adopted": True, "why": why, "on": frame["index"]})
     for label, rows in thrown:  # a group none of whose pieces is on a joint: its centre's model
@@ -303,6 +318,21 @@ def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
             parts.append(part)
             labels[rows] = len(parts)
     return ({"t0": t0, "labels": labels, "parts": parts} if parts else None), report
+
+
+def split_parts(x0, u, path, times, group, floor: float, snapshots: int = 4) -> torch.Tensor:
+    """[M] labels 1, 2, ... of the rigid parts of the Gaussians ``group`` (``split_rigid``), split by
+    f_trd's velocities ``u`` [N, 3] at their means ``x0`` at the handover or by f_defo's at one of
+    ``snapshots`` earlier frames of their ``path`` (central differences at the ``times``), whichever
+    gives the most parts (the handover's on a tie): two links of a chain can swing as one at the
+    handover and apart earlier."""
+    best = split_rigid(x0[group], u[group], floor)
+    for k in np.linspace(1, len(path) - 2, snapshots).round().astype(int)[:-1]:
+        velocity = (path[k + 1][group] - path[k - 1][group]) / float(times[k + 1] - times[k - 1])
+        labels = split_rigid(path[k][group], velocity, floor)
+        if int(labels.max()) > int(best.max()):
+            best = labels
+    return best
 
 
 def carried_by(
@@ -358,9 +388,9 @@ def on_frame(
         part, result = choose_part_law(
             relative[-1], list(relative), times, rows, learned, settings, fit, seen
         )
-        result.pop("_frame", None)
+        own = result.pop("_frame", None)
         if part is not None and (
             best is None or result["position_rms"]["law"] < best[1]["position_rms"]["law"]
         ):
-            best = (part, result, frame)
+            best = (part, result, frame, {"part": part, "q": own["q"], "x0": relative[-1]})
     return best

@@ -60,6 +60,10 @@ Array = np.ndarray
 
 MIN_PIECE = 3
 """Fewest samples of a piece of the path between events that the shooting fit uses."""
+LIBRARIES = (None, ("1", "q", "v"), ("1", "v", "sin", "cos"))
+"""The libraries the backward elimination starts from: every term, the linear ones (springs, coupled
+masses, a chain at small angles) and the pendulum's; over a short span ``q`` and ``sin q`` are near
+one another, and from every term the elimination can keep the wrong one."""
 SMALL_SETS = 3
 """Of one coordinate, the sets of each number of library terms up to this one that best fit the
 smoothed accelerations (``SMALL_SHOTS`` of each) are scored on the held-out end besides the nested sets of the
@@ -368,7 +372,7 @@ class _Fits:
         candidates = np.argwhere(chosen)
         return tuple(candidates[np.argmax(rank[chosen])])
 
-    def backward(self, threshold: float, growth: float, significant: float = 25.0):
+    def backward(self, threshold: float, growth: float, significant: float = 25.0, kinds=None):
         """The nested sets of terms ``[(active, dropped, (xi, states, rms, significance))]``: from those
         PySINDy's ``STLSQ`` keeps at ``threshold`` (the smallest RMS share of a coordinate's acceleration
         a term may explain) on the smoothed derivatives, each next one without its least significant
@@ -380,7 +384,8 @@ class _Fits:
         shares say nothing; their significance is low, the simplest of them stays, and the refit after
         each drop hands it the share of those dropped."""
         active = np.zeros((len(self.target_scale), len(self.terms)), dtype=bool)
-        active[:, self.kept] = stlsq(self.theta[:, self.kept], self.target, threshold) != 0
+        kept = self.kept & np.array([kinds is None or kind in kinds for kind, _ in self.terms])
+        active[:, kept] = stlsq(self.theta[:, kept], self.target, threshold) != 0
         fit, dropped = self(active), ""
         floor = growth * fit[2] + 1e-6 * float(np.ptp(self.path.q))
         found = []
@@ -447,7 +452,11 @@ def identify(
     # the nested sets of terms on the fitted samples, each scored on the held-out end
     baseline_rms, scored = _rms(baseline, q[n_fit:]), []
     fits = _Fits(held, terms, dt_max)
-    candidates = [(active, dropped, fit[:2]) for active, dropped, fit in fits.backward(threshold, growth)]
+    candidates = [
+        (active, dropped, fit[:2])
+        for kinds in LIBRARIES
+        for active, dropped, fit in fits.backward(threshold, growth, kinds=kinds)
+    ]
     if n == 1:  # small sets too: over a short span terms trade places (q, sin q, cos q, 1 near rest)
         seen = {active.tobytes() for active, *_ in candidates}
         for active in fits.small_sets(SMALL_SETS, SMALL_SHOTS):
