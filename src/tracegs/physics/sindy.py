@@ -280,10 +280,12 @@ def shoot(
     noise = float(r @ r) / max(len(r) - len(fit.x), 1) + 1e-300
     with np.errstate(all="ignore"):
         information = fit.jac.T @ fit.jac
-    if np.isfinite(information).all() and np.isfinite(fit.x).all():
-        variance = np.diag(np.linalg.pinv(information))[m:] * noise
-        significance[active] = fit.x[m:] ** 2 / np.maximum(variance, 1e-300)
-    # (a fit that blew up says nothing of its terms' significance: zeros, and its rms is not finite)
+    try:  # (a fit that blew up says nothing of its terms' significance: zeros)
+        if np.isfinite(information).all() and np.isfinite(fit.x).all():
+            variance = np.diag(np.linalg.pinv(information))[m:] * noise
+            significance[active] = fit.x[m:] ** 2 / np.maximum(variance, 1e-300)
+    except np.linalg.LinAlgError:
+        pass
     states = [
         (fit.x[2 * n * k : 2 * n * k + n], fit.x[2 * n * k + n : 2 * n * (k + 1)]) for k in range(len(pieces))
     ]
