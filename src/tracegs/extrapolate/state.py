@@ -40,10 +40,13 @@ class ExtrapolationState:
     per part: "joint" ("hinge" or "slider"), "axis" [3] (the hinge's axis or the rail's direction),
     "pivot" [3] (zeros on a rail), "base_rotation" [3, 3], "base_translation" [3] (float64,
     ``physics/joint.py``), "model" (its coordinate's identified model, ``IdentifiedModel.to_dict``:
-    terms, coefficients, contacts, its state at t0), "parent" (None, or the index of
-    the part in whose frame it turns); a thrown
-    part (``"joint": "thrown"``, ``extrapolate/thrown.py``) has instead "axis" (up), "pivot" (its
-    centre at t0), "velocity" [3] (its drift along the floor) and "spin" [3]]}``
+    terms, coefficients, contacts, its state at t0), "coordinate" (a chain's link: which of the
+    model's coordinates is its own; absent: 0), "parent" (None, or the index of the part in whose
+    frame it turns); a part on no joint (``"joint": "free"``, ``extrapolate/unjointed.py``) has
+    instead "pivot" (its centre at t0), "basis" [k, 3] (the directions its model's coordinates move
+    it along) and "spin" [3]; a thrown
+    part (``"joint": "thrown"``, ``extrapolate/thrown.py``) "axis" (up), "pivot" (its centre at
+    t0), "velocity" [3] (its drift along the floor) and "spin" [3]]}``
     (``extrapolate/joints.py``); None: none adopted, or not looked for (``extrapolation.joint_laws``)."""
     report: dict = field(default_factory=dict)
     """What the choices were made from, for ``summary.json``: ``freeze_psnr`` {threshold: training-view
