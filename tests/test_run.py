@@ -79,11 +79,15 @@ def test_a_run_without_its_post_training_state_names_the_command_that_makes_it(t
     torch.save(ckpt, run / CHECKPOINT)
     with pytest.raises(RunError, match=f"tracegs calibrate --run {run}"):
         load_run(run, device="cpu")
+    (run / "summary.json").write_text(json.dumps({"iterations": 7, "freeze_threshold": -1.0}))
     state = calibrate_run(run, device="cpu", data=scene)
     assert (run / EXTRAPOLATION).is_file()
     reloaded = load_run(run, device="cpu").state
     assert reloaded.freeze_threshold == state.freeze_threshold
     assert torch.equal(reloaded.unseen, state.unseen)
+    summary = json.loads((run / "summary.json").read_text())  # the summary says what was chosen now
+    assert summary["iterations"] == 7 and summary["freeze_threshold"] == state.freeze_threshold
+    assert summary["joint_laws"] == state.report.get("joint_laws", [])
 
 
 def test_loading_a_run_writes_nothing_and_gives_the_state_training_chose(tmp_path):

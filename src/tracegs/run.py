@@ -323,6 +323,15 @@ def calibrate_run(
     predictor = calibrate(model, float(ckpt["t_max"]), cfg.extrapolation, run_data(cfg), cfg.downscale)
     save_extrapolation(run, predictor.state)
     save_config(cfg, run / CONFIG)
+    summary = run / "summary.json"
+    if summary.is_file():  # what the calibration chose, as the run's summary says it
+        state = predictor.state
+        chosen = {
+            "freeze_threshold": state.freeze_threshold,
+            "freeze_psnr": state.report.get("freeze_psnr", {}),
+        }
+        chosen |= {k: state.report.get(k, []) for k in ("free_bodies", "joint_laws")}
+        atomic_write_text(summary, json.dumps(json.loads(summary.read_text()) | chosen, indent=2))
     return predictor.state
 
 
