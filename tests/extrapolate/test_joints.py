@@ -218,7 +218,10 @@ def test_a_chain_of_two_hinges_is_identified_as_one_system():
         return r1 @ r2, r1 @ s2 + s1
 
     centres = [tuple((PIVOT + torch.tensor([0.0, -0.3, 0.0], dtype=torch.float64)).tolist())]
-    centres += [tuple((elbow + torch.tensor([0.0, -0.3, 0.0], dtype=torch.float64)).tolist()), (0.9, 0.9, 0.0)]
+    centres += [
+        tuple((elbow + torch.tensor([0.0, -0.3, 0.0], dtype=torch.float64)).tolist()),
+        (0.9, 0.9, 0.0),
+    ]
     model, settings, (first, second, still) = blob_model(centres, [carrier, link, None])
     model.frame_interval.fill_(1 / 60)
     predictor = calibrate(model, T_MAX, settings, extent=2.0)

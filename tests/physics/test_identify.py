@@ -6,8 +6,8 @@ import json
 
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
 import torch
+from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
 from tracegs.physics.events import detect_events
