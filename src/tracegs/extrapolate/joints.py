@@ -51,6 +51,10 @@ MIN_FRAMES = 8
 """Fewest frames of f_defo's path up to the handover that a joint law is identified from."""
 MIN_GAUSSIANS = 20
 """Fewest Gaussians of a part (``rigid_components``' smallest group) put on a joint."""
+ONE_BODY = 0.4
+"""Largest RMS residual of a group's best rigid motion per frame, relative to its radius, for its
+centre to be given a model (``unjointed.py``): a ball whose Gaussians slide over it as it turns
+stays under it, Gaussians that f_defo loses or several bodies moving apart do not."""
 RIGID_TOLERANCE = 0.2
 """Largest RMS residual of a part's best rigid motion per frame, relative to its radius, for it to be
 put on a joint: a group whose pieces move apart (a box spinning on a turning table: 0.34) is cut into
@@ -305,11 +309,15 @@ def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
         if bool((labels[rows] > 0).any()):
             continue
         entry = {"group": label, "free_body": int(((groups == label) & free).sum())}
-        truth = torch.stack([p[rows].detach().double().cpu() for p in path])
+        track = torch.stack([p[rows].detach().double().cpu() for p in path])
         x = x0[rows].detach().double().cpu()
-        part, result = choose_unjointed(
-            *part_transforms(x, list(truth)), x, truth, times, rows, learned, settings
-        )
+        transforms = part_transforms(x, list(track))
+        radius = max(float((x - x.mean(0)).square().sum(-1).mean().sqrt()), 1e-12)
+        if _rms(_positions(x, *transforms), track) <= ONE_BODY * radius:
+            part, result = choose_unjointed(*transforms, x, track, times, rows, learned, settings)
+        else:
+            part, result = None, {"gaussians": int(rows.sum()), "joint": "free", "adopted": False}
+            result["why"] = "not one body (it moves rigidly about no centre): the learned physics"
         report.append({**entry, **result})
         if part is None:  # or one that bounces on a floor (f_defo rounds the bounce: no velocity jump)
             part, result = choose_thrown([p[rows] for p in path], times, rows, learned, settings)
