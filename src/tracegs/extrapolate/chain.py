@@ -19,6 +19,7 @@ import math
 import numpy as np
 import torch
 
+from ..physics.free_body import split_rigid
 from ..physics.identify import holdout_split, identify
 from .joint_motion import joint_transforms
 
@@ -87,3 +88,18 @@ def choose_chain(carrier: dict, link: dict, truth: torch.Tensor, times, learned,
         )
         return pair, {**entry, "adopted": True, "why": "adopted"}
     return None, {**entry, "why": why}
+
+
+def split_parts(x0, u, path, times, group, floor: float, snapshots: int = 4) -> torch.Tensor:
+    """[M] labels 1, 2, ... of the rigid parts of the Gaussians ``group`` (``split_rigid``), split by
+    f_trd's velocities ``u`` [N, 3] at their means ``x0`` at the handover or by f_defo's at one of
+    ``snapshots`` earlier frames of their ``path`` (central differences at the ``times``), whichever
+    gives the most parts (the handover's on a tie): two links of a chain can swing as one at the
+    handover and apart earlier."""
+    best = split_rigid(x0[group], u[group], floor)
+    for k in np.linspace(1, len(path) - 2, snapshots).round().astype(int)[:-1]:
+        velocity = (path[k + 1][group] - path[k - 1][group]) / float(times[k + 1] - times[k - 1])
+        labels = split_rigid(path[k][group], velocity, floor)
+        if int(labels.max()) > int(best.max()):
+            best = labels
+    return best

@@ -3,7 +3,7 @@ hinge or slides on a rail, whose one coordinate ``q`` follows a force law ``q'' 
 (``physics/force_law.py``) that the learned physics, its accelerations held from the handover, cannot
 follow (a pendulum swinging back, a spring, a wheel braking to rest).
 
-For each rigid part of the moving Gaussians (``free_bodies.moving_groups``, split by ``split_rigid``;
+For each rigid part of the moving Gaussians (``free_bodies.moving_groups``, split by ``chain.split_parts``;
 the free bodies' Gaussians left to them), f_defo's per-frame rigid transforms of the part from the
 handover t0 back to t = 0 give a hinge (refitted to the positions) and a slider
 (``physics/joint.py``); the one that reproduces
@@ -34,14 +34,14 @@ import math
 import numpy as np
 import torch
 
-from ..physics.free_body import fit_rigid_transform, split_rigid
+from ..physics.free_body import fit_rigid_transform
 from ..physics.identify import holdout_split, identify
 from ..physics.joint import (
     fit_hinge,
     fit_slider,
     refine_hinge,
 )
-from .chain import choose_chain, pooled
+from .chain import choose_chain, pooled, split_parts
 from .free_bodies import moving_groups
 from .joint_motion import joint_transforms
 from .thrown import choose_thrown
@@ -326,21 +326,6 @@ def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
             parts.append(part)
             labels[rows] = len(parts)
     return ({"t0": t0, "labels": labels, "parts": parts} if parts else None), report
-
-
-def split_parts(x0, u, path, times, group, floor: float, snapshots: int = 4) -> torch.Tensor:
-    """[M] labels 1, 2, ... of the rigid parts of the Gaussians ``group`` (``split_rigid``), split by
-    f_trd's velocities ``u`` [N, 3] at their means ``x0`` at the handover or by f_defo's at one of
-    ``snapshots`` earlier frames of their ``path`` (central differences at the ``times``), whichever
-    gives the most parts (the handover's on a tie): two links of a chain can swing as one at the
-    handover and apart earlier."""
-    best = split_rigid(x0[group], u[group], floor)
-    for k in np.linspace(1, len(path) - 2, snapshots).round().astype(int)[:-1]:
-        velocity = (path[k + 1][group] - path[k - 1][group]) / float(times[k + 1] - times[k - 1])
-        labels = split_rigid(path[k][group], velocity, floor)
-        if int(labels.max()) > int(best.max()):
-            best = labels
-    return best
 
 
 def carried_by(
