@@ -2,7 +2,7 @@
 
 ``calibrate(model, t_max, settings, data)`` chooses, on the training images, the post-training state
 (``ExtrapolationState``: the handover's freeze threshold, the Gaussians no camera saw, the free bodies,
-the joint parts with their force laws) and returns the trained run as a ``Predictor``, which turns any
+the parts with their identified models) and returns the trained run as a ``Predictor``, which turns any
 time into Gaussians and any camera at that time into an image; the run folder stores the state
 (``run.py``), and ``run.load_run`` builds the same ``Predictor`` from it. ``still_codes`` says which
 Gaussians hold still after the handover and why.

@@ -13,8 +13,8 @@ pseudo-extrapolation on the training data: start the physics ``horizon`` frames 
 training time, integrate to the last few training times, and score the training cameras there.
 
 ``choose_free_bodies`` (``free_bodies.py``): the rigid parts in flight that move as free bodies.
-``choose_joint_laws`` (``joints.py``): the rigid parts on a hinge or a rail whose coordinate follows a
-force law that the learned physics does not.
+``choose_joint_laws`` (``joints.py``): the parts whose coordinates follow an identified model that
+the learned physics does not (a hinge, a rail, a chain of them, a part on no joint).
 """
 
 from __future__ import annotations

@@ -1,30 +1,30 @@
-"""Joint parts with identified force laws (``extrapolation.joint_laws``): a rigid part that turns on a
-hinge or slides on a rail, whose one coordinate ``q`` follows a force law ``q'' = f(q, q')``
-(``physics/force_law.py``) that the learned physics, its accelerations held from the handover, cannot
-follow (a pendulum swinging back, a spring, a wheel braking to rest).
+"""Parts with identified models (``extrapolation.joint_laws``): a rigid part that turns on a hinge or
+slides on a rail, whose coordinate ``q`` follows a model ``q'' = f(q, q')`` identified from f_defo's
+path (``physics/identify.py``) that the learned physics, its accelerations held from the handover,
+cannot follow (a pendulum swinging back, a spring, a wheel braking to rest); a chain of such parts; a
+part on no joint.
 
-For each rigid part of the moving Gaussians (``free_bodies.moving_groups``, split by ``chain.split_parts``;
-the free bodies' Gaussians left to them), f_defo's per-frame rigid transforms of the part from the
-handover t0 back to t = 0 give a hinge (refitted to the positions) and a slider
-(``physics/joint.py``); the one that reproduces
-f_defo's positions better, within ``joint_fit_tolerance`` of the part's radius of its best rigid
-motion per frame, gives ``q`` [T].
-``choose_law`` picks the law that best predicts the held-out end of ``q`` (``joint_law_holdout``). It is
-adopted when it is not ``constant``, is stable (no negative stiffness or damping: a passive joint),
-beats moving on at the last velocity there, and predicts the
-part's positions there no worse than ``joint_law_tolerance`` times the learned physics started at
-the same frame. A piece left on no law that an adopted part's transforms carry along its path about
-as well as its own rigid motion does (``carried_by``: a pendulum's rod, cut from its bob by f_trd's
-velocities) moves with that part. A piece that turns on a joint of its own in the frame of a part
-with a law, adopted or not (``on_frame``: a box spinning on a turntable), is put on that joint, its
-law chosen and backtested as above with the carrier's law carrying it; a carrier whose law is not
-adopted moves only the part it carries. A moving group none of whose pieces is on a joint and that
-gets the identified model of its centre's coordinates (``unjointed.py``: a disc on springs, a puck
-after an impact), or where that is not adopted, bounces on a floor if it did within the span (a thrown
-part, ``thrown.py``). Everything else keeps the learned physics, and the report says
-why. No images.
+For each rigid part of the moving Gaussians (``free_bodies.moving_groups``, split by
+``chain.split_parts``; the free bodies' Gaussians left to them), f_defo's per-frame rigid transforms of
+the part from the handover t0 back to t = 0 give a hinge (refitted to the positions) and a slider
+(``physics/joint.py``); the one that reproduces f_defo's positions better, within
+``joint_fit_tolerance`` of the part's radius of its best rigid motion per frame, gives ``q`` [T], and
+``identify`` its model, chosen on the held-out end of ``q`` (``joint_law_holdout``). It is adopted when
+it is more than a constant acceleration, is stable, beats moving on at the last velocity there, fits
+the whole path, and predicts the part's positions there no worse than ``joint_law_tolerance`` times
+the learned physics started at the same frame. A piece left on no model that an adopted part's
+transforms carry along its path about as well as its own rigid motion does (``carried_by``: a
+pendulum's rod, cut from its bob by f_trd's velocities) moves with that part. A piece that turns on a
+joint of its own in the frame of a part with a model, adopted or not (``on_frame``: a box spinning on
+a turntable), is put on that joint, its model chosen and backtested as above with the carrier's
+carrying it, and the two coordinates identified together as one system (``chain.py``: a double
+pendulum) where that predicts both better; a carrier whose model is not adopted moves only the part
+it carries. A moving group none of whose pieces is on a joint gets the identified model of its
+centre's coordinates (``unjointed.py``: a disc on springs, a puck after an impact), or where that is
+not adopted, bounces on a floor if it did within the span (a thrown part, ``thrown.py``). Everything
+else keeps the learned physics, and the report says why. No images.
 
-N: Gaussians, M: a part's Gaussians, T: frames, P: a law's parameters.
+N: Gaussians, M: a part's Gaussians, T: frames.
 """
 
 from __future__ import annotations

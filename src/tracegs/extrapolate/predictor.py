@@ -4,7 +4,7 @@ time t into Gaussians and any camera at t into an image.
 Up to the handover (``handover_frames`` before t_max) f_defo places the Gaussians, as in training;
 later the learned physics (f_trd, integrated from the handover) moves every Gaussian but those that
 hold still (``still.py``: one code per Gaussian says which and why) and those that move as free bodies
-(``free_bodies.py``) or on joints with force laws (``joints.py``). The methods without f_trd (DefGS,
+(``free_bodies.py``) or with identified models (``joints.py``). The methods without f_trd (DefGS,
 static 3DGS) render f_defo or the canonical Gaussians at every time.
 
 ``run.load_run`` builds the ``Predictor`` of a run folder and the trainer's last calibration builds
@@ -176,7 +176,7 @@ class Predictor:
         return apply_free_bodies(gaussians, start, labels, bodies["bodies"], t - t0)
 
     def _with_joint_laws(self, t0: float, t: float, gaussians: dict, start: dict) -> dict:
-        """``gaussians`` with the joint parts' Gaussians moved by their force laws from ``start``,
+        """``gaussians`` with the joint parts' Gaussians moved by their identified models from ``start``,
         f_defo's state at ``t0`` (``joints.py``; ``joint_laws``)."""
         joints = self.state.joint_laws
         if not self.settings.joint_laws or joints is None or not joints["parts"]:
