@@ -287,9 +287,11 @@ def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
         carrier = report[frame["report"]]
         own = [(carrier["position_rms"]["law" if frame["index"] else "learned"], int(frame["rows"].sum()))]
         link = {**link, "rows": rows, "report": i}
-        own.append((result["position_rms"]["law"], int(rows.sum())))
+        own.append((result["position_rms"]["law" if part is not None else "learned"], int(rows.sum())))
         pair, chained = choose_chain(frame, link, truth, times, learned, settings, pooled(own))
         report.append(chained)
+        if part is None and pair is None:  # on a joint in its frame, but neither alone nor as a chain
+            continue
         if pair is not None:  # one system: the carrier's Gaussians move by it too
             part = pair[1]
             if frame["index"] is None:
@@ -358,14 +360,16 @@ def carried_by(
 
 def on_frame(
     path: list[torch.Tensor], times: list[float], rows, learned, settings, frames: list[dict], me: int
-) -> tuple[dict, dict, dict] | None:
-    """``(part, report, frame)`` of the Gaussians ``rows``, on their ``path`` [T] x [M, 3] (the handover
+) -> tuple[dict | None, dict, dict, dict] | None:
+    """``(part, report, frame, link)`` of the Gaussians ``rows``, on their ``path`` [T] x [M, 3] (the handover
     last), as a part on a joint of its own in the frame of one of the parts with a law (``frames``:
     ``choose_part_law``'s ``"_frame"`` with its ``"report"`` index; not the report ``me``): their path
     in that part's frame (its joint's transforms of its coordinate) put on a joint (``fit_joint``,
     ``_fits``) and its law chosen and backtested as ``choose_part_law`` does, the carrier's predicted
     motion and the part's composed on the held-out frames. The frame whose law predicts them best
-    there, of those adopted; None when none is."""
+    there, of those adopted, else of those whose law was fitted (its part None: the two may still be
+    one system, ``chain.py``); ``link``: the part's joint, coordinate ``q`` [T] and means ``x0`` in that
+    frame at the handover. None when none is."""
     truth = torch.stack([p.detach().double().cpu() for p in path])
     best = None
     for frame in frames:
@@ -382,8 +386,9 @@ def on_frame(
             relative[-1], list(relative), times, rows, learned, settings, fit, seen
         )
         own = result.pop("_frame", None)
-        if part is not None and (
-            best is None or result["position_rms"]["law"] < best[1]["position_rms"]["law"]
-        ):
-            best = (part, result, frame, {"part": part, "q": own["q"], "x0": relative[-1]})
-    return best
+        if own is None:
+            continue
+        rank = (part is None, result["position_rms"]["law"])  # adopted first, then the better
+        if best is None or rank < best[0]:
+            best = (rank, (part, result, frame, {"part": own["part"], "q": own["q"], "x0": relative[-1]}))
+    return None if best is None else best[1]
