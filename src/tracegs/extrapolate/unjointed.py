@@ -4,8 +4,9 @@ springs, a ball rolling in a bowl, a puck sliding on after an impact).
 
 The part's rigid transforms from the handover to each frame (``joints.part_transforms``) carry its
 centre (its Gaussians' mean at the handover) along a path ``c(t)`` [T, 3], the mean of its Gaussians
-in each frame also where they slide over it (a spinning ball); its model is the identified
-model of those three coordinates together, ``c'' = f(c, c')`` (``physics/identify.py``: coupled springs,
+in each frame also where they slide over it (a spinning ball); its model is the identified model of
+its coordinates along the directions it moves in (``motion_axes``), together, ``c'' = f(c, c')``
+(``physics/identify.py``: coupled springs,
 damping, friction, a constant force, split at the velocity jumps of an impact), and the part turns at
 the mean angular velocity of its last frames' rigid turns. It is chosen as a joint's model is (the
 held-out end of the span, ``joint_law_holdout``): adopted only where it is more than a constant
