@@ -21,15 +21,7 @@ import torch
 
 from ..physics.free_body import split_rigid
 from ..physics.identify import holdout_split, identify
-from .joint_motion import joint_transforms
-
-
-def _positions(x: torch.Tensor, rotation: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
-    return x.double().cpu() @ rotation.transpose(1, 2) + translation[:, None]
-
-
-def _rms(a: torch.Tensor, b: torch.Tensor) -> float:
-    return float((a - b).square().sum(-1).mean().sqrt())
+from .joint_motion import joint_transforms, rms_distance, transformed_points
 
 
 def pooled(errors: list[tuple[float, int]]) -> float:
@@ -54,21 +46,21 @@ def choose_chain(carrier: dict, link: dict, truth: torch.Tensor, times, learned,
     held = torch.from_numpy(model.held_out_path)
     rotation, translation = joint_transforms(carrier["part"], held[:, 0])
     x_carrier = truth[-1][carrier["rows"].cpu()]
-    carrier_means = _positions(x_carrier, rotation, translation)
-    link_means = _positions(link["x0"], *joint_transforms(link["part"], held[:, 1]))
+    carrier_means = transformed_points(x_carrier, rotation, translation)
+    link_means = transformed_points(link["x0"], *joint_transforms(link["part"], held[:, 1]))
     link_means = link_means @ rotation.transpose(1, 2) + translation[:, None]
     rows = (carrier["rows"] | link["rows"]).cpu()
     learned_means = learned.means(float(t[n - 1]), [float(s) for s in t[n:]])
     chain = pooled(
         [
-            (_rms(carrier_means, truth[n:, carrier["rows"].cpu()]), int(carrier["rows"].sum())),
-            (_rms(link_means, truth[n:, link["rows"].cpu()]), int(link["rows"].sum())),
+            (rms_distance(carrier_means, truth[n:, carrier["rows"].cpu()]), int(carrier["rows"].sum())),
+            (rms_distance(link_means, truth[n:, link["rows"].cpu()]), int(link["rows"].sum())),
         ]
     )
     entry["position_rms"] = {
         "chain": chain,
         "own": own,
-        "learned": _rms(learned_means[:, rows], truth[n:, rows]),
+        "learned": rms_distance(learned_means[:, rows], truth[n:, rows]),
     }
     if model.active_kinds <= {"1"}:  # (a steady turn: the learned physics holds the carrier)
         why = "a constant acceleration, which the learned physics is: the links' own models"

@@ -21,6 +21,16 @@ def joint_transforms(joint: dict, q: torch.Tensor) -> tuple[torch.Tensor, torch.
     return slider_transforms(slider, q)
 
 
+def transformed_points(x0: torch.Tensor, rotation: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
+    """[T, M, 3] the points ``x0`` [M, 3] carried by each transform (``R`` [T, 3, 3], ``T`` [T, 3])."""
+    return x0.double().cpu() @ rotation.transpose(1, 2) + translation[:, None]
+
+
+def rms_distance(a: torch.Tensor, b: torch.Tensor) -> float:
+    """The RMS distance between the points ``a`` and ``b`` [..., 3]."""
+    return float((a - b).square().sum(-1).mean().sqrt())
+
+
 def coordinate_at(part: dict, t: float) -> float:
     """A stored part's coordinate ``q`` at ``t`` (>= the handover): its identified model
     (``IdentifiedModel.to_dict``) integrated from its state at the handover; a chain's link

@@ -43,7 +43,7 @@ from ..physics.joint import (
 )
 from .chain import choose_chain, pooled, split_parts
 from .free_bodies import moving_groups
-from .joint_motion import joint_transforms
+from .joint_motion import joint_transforms, rms_distance, transformed_points
 from .thrown import choose_thrown
 from .unjointed import choose_unjointed
 
@@ -67,15 +67,6 @@ def part_transforms(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[torch.T
     means ``x0`` [M, 3] at the handover to each of their means ``path`` [T] x [M, 3] (Kabsch)."""
     fits = [fit_rigid_transform(x0, x) for x in path]
     return torch.stack([r for r, _ in fits]), torch.stack([t for _, t in fits])
-
-
-def _positions(x0: torch.Tensor, rotation: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
-    """[T, M, 3] the points ``x0`` [M, 3] carried by each transform (``R`` [T, 3, 3], ``T`` [T, 3])."""
-    return x0.double().cpu() @ rotation.transpose(1, 2) + translation[:, None]
-
-
-def _rms(a: torch.Tensor, b: torch.Tensor) -> float:
-    return float((a - b).square().sum(-1).mean().sqrt())
 
 
 def fit_joint(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[dict | None, torch.Tensor | None, dict]:
@@ -107,12 +98,12 @@ def fit_joint(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[dict | None, 
     residuals, best = {}, None
     for name, (joint, fitted, q) in candidates.items():
         joint = {**joint, "base_rotation": fitted.base_rotation, "base_translation": fitted.base_translation}
-        residual = _rms(_positions(x, *joint_transforms(joint, q)), truth) / radius
+        residual = rms_distance(transformed_points(x, *joint_transforms(joint, q)), truth) / radius
         residuals[name] = residual if math.isfinite(residual) else math.inf
         if math.isfinite(residual) and (best is None or residual < residuals[best[0]["joint"]]):
             best = (joint, q)
     residuals["radius"] = radius
-    residuals["rigid"] = _rms(_positions(x, rotation, translation), truth) / radius
+    residuals["rigid"] = rms_distance(transformed_points(x, rotation, translation), truth) / radius
     return (None, None, residuals) if best is None else (*best, residuals)
 
 
@@ -194,11 +185,14 @@ def choose_part_law(
     # the part's positions on the held-out frames: the model fitted to the frames before them, against
     # the learned physics started at the last of those frames
     held = joint_transforms(joint, torch.from_numpy(model.held_out_path[:, 0]))
-    law_means = _positions(x0, *held)
+    law_means = transformed_points(x0, *held)
     if frame is not None:  # a carried part: its frame's predicted motion, then its own, in the world
         law_means, truth = law_means @ frame[0].transpose(1, 2) + frame[1][:, None], frame[2]
     learned_means = learned.means(float(t[n - 1]), [float(s) for s in t[n:]])[:, rows.cpu()]
-    entry["position_rms"] = {"law": _rms(law_means, truth), "learned": _rms(learned_means, truth)}
+    entry["position_rms"] = {
+        "law": rms_distance(law_means, truth),
+        "learned": rms_distance(learned_means, truth),
+    }
     part = {**joint, "model": model.to_dict(), "parent": None}
     entry["_frame"] = {"part": part, "q": q, "held": held}
     span = float(t[-1] - t[0])
@@ -315,7 +309,7 @@ def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
         x = x0[rows].detach().double().cpu()
         transforms = part_transforms(x, list(track))
         radius = max(float((x - x.mean(0)).square().sum(-1).mean().sqrt()), 1e-12)
-        if _rms(_positions(x, *transforms), track) <= ONE_BODY * radius:
+        if rms_distance(transformed_points(x, *transforms), track) <= ONE_BODY * radius:
             part, result = choose_unjointed(*transforms, x, track, times, rows, learned, settings)
         else:
             part, result = None, {"gaussians": int(rows.sum()), "joint": "free", "adopted": False}
@@ -347,12 +341,12 @@ def carried_by(
     truth = torch.stack([p.detach().double().cpu() for p in path])
     if residuals is None:
         radius = max(float((x - x.mean(0)).square().sum(-1).mean().sqrt()), 1e-12)
-        rigid = _rms(_positions(x, *part_transforms(x, list(truth))), truth) / radius
+        rigid = rms_distance(transformed_points(x, *part_transforms(x, list(truth))), truth) / radius
     else:
         radius, rigid = max(residuals["radius"], 1e-12), residuals["rigid"]
     best, best_residual = None, math.inf
     for k, (part, q) in enumerate(zip(parts, paths, strict=True)):
-        residual = _rms(_positions(x, *joint_transforms(part, q)), truth) / radius
+        residual = rms_distance(transformed_points(x, *joint_transforms(part, q)), truth) / radius
         if residual <= min(rigid + settings.joint_fit_tolerance, best_residual):
             best, best_residual = k, residual
     return best

@@ -32,7 +32,7 @@ from ..physics.free_body import centre_of_mass, fit_rigid_transform, main_piece
 from ..physics.identify import IdentifiedModel
 from ..physics.sindy import Contact
 from ..physics.so3 import quat_to_axis_angle, rotmat_to_quat
-from .joint_motion import thrown_motion
+from .joint_motion import rms_distance, thrown_motion
 
 MIN_BOUNCES_FRAMES = 3
 """Fewest frames after the first contact (of those fitted) for the restitution to be identified."""
@@ -159,10 +159,6 @@ def fit_thrown(path: torch.Tensor, times: np.ndarray) -> dict | None:
     }
 
 
-def _rms(a: torch.Tensor, b: torch.Tensor) -> float:
-    return float((a - b).square().sum(-1).mean().sqrt())
-
-
 def _stored(fit: dict, t: float) -> dict:
     """The thrown part of ``fit`` (``fit_thrown``) as stored, from its state at ``t``, its last frame:
     its height's ``bounce`` law as the identified model it is (``physics/identify.py``: ``q'' = -g``,
@@ -236,7 +232,10 @@ def choose_thrown(
         constants={k: float(v) for k, v in law.constants.items()},
         contact=whole["contact"],
         held_out_frames=len(t) - n,
-        position_rms={"law": _rms(law_means, truth[n:]), "learned": _rms(learned_means, truth[n:])},
+        position_rms={
+            "law": rms_distance(law_means, truth[n:]),
+            "learned": rms_distance(learned_means, truth[n:]),
+        },
     )
     g, e = law.params[0], law.params[1]
     if not (g > 0 and 0 < e < 1):

@@ -24,6 +24,7 @@ import torch
 
 from ..physics.identify import holdout_split, identify
 from ..physics.so3 import quat_to_axis_angle, rodrigues, rotmat_to_quat
+from .joint_motion import rms_distance
 
 MOTION_SPREAD = 0.02
 """Smallest spread of the centre's path along a direction, relative to its largest, for that direction
@@ -61,10 +62,6 @@ def carried(start: torch.Tensor, centre: torch.Tensor, turn_rate: torch.Tensor, 
     return torch.stack(out)
 
 
-def _rms(a: torch.Tensor, b: torch.Tensor) -> float:
-    return float((a - b).square().sum(-1).mean().sqrt())
-
-
 def choose_unjointed(
     rotation: torch.Tensor,
     translation: torch.Tensor,
@@ -94,7 +91,10 @@ def choose_unjointed(
     centres = still + model.held_out_path @ basis
     law_means = carried(truth[n - 1], torch.from_numpy(path[n - 1]), turn_rate, centres, t[n:] - t[n - 1])
     learned_means = learned.means(float(t[n - 1]), [float(s) for s in t[n:]])[:, rows.cpu()]
-    entry["position_rms"] = {"law": _rms(law_means, truth[n:]), "learned": _rms(learned_means, truth[n:])}
+    entry["position_rms"] = {
+        "law": rms_distance(law_means, truth[n:]),
+        "learned": rms_distance(learned_means, truth[n:]),
+    }
     span = float(t[-1] - t[0])
     if model.active_kinds <= {"1"}:
         why = "a constant acceleration, which the learned physics is: the learned physics"
