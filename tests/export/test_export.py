@@ -213,3 +213,20 @@ def test_bad_arguments_are_refused_before_anything_is_read(tmp_path):
         export_run(missing)
     with pytest.raises(FileNotFoundError, match="config.json"):
         export_run(missing, time=1.0)
+
+
+def test_a_trained_run_exports_to_mjcf_and_urdf_that_mujoco_and_yourdfpy_load(run, tmp_path):
+    mujoco = pytest.importorskip("mujoco")
+    from tracegs.export.simulate import load_urdf
+    from tracegs.export.simulator import export_simulator
+
+    report = export_simulator(run, mjcf=tmp_path / "scene.xml", urdf=tmp_path / "urdf", device="cpu")
+    model = mujoco.MjModel.from_xml_path(str(tmp_path / "scene.xml"))
+    assert model.nkey == 1 and report["check"]["finite"]
+    assert len(report["bodies"]) == model.nbody - 1  # the world and one body per part
+    robot = load_urdf(tmp_path / "urdf" / f"{run.name}.urdf")
+    assert set(robot.link_map) == {"world"} | {b["body"] for b in report["bodies"]}
+    for entry in report["check"]["against_the_run"]:
+        assert entry["mean_path_error"] is None or entry["mean_path_error"] >= 0
+    with pytest.raises(ValueError, match="--mjcf"):
+        export_simulator(run)

@@ -211,15 +211,18 @@ def _eval(a: Eval) -> None:
 
 def _export(a: Export) -> None:
     from ..export.command import export_run
+    from ..export.simulator import export_simulator, format_report
 
-    report = export_run(a.run, a.time, a.times, a.ply, a.out, a.format, a.labels, a.device)
-    _dump(report, a.json)
+    if a.mjcf is None and a.urdf is None:
+        return _dump(export_run(a.run, a.time, a.times, a.ply, a.out, a.format, a.labels, a.device), a.json)
+    report = export_simulator(a.run, a.mjcf, a.urdf, a.device)
+    _dump(report, a.json, format_report(report))
 
 
 def _view(a: View) -> None:
     from ..view.server import serve
 
-    serve(a.run, a.port, a.host, a.data, a.device, t_end=a.t_end, width=a.width)
+    serve(a.run, a.port, a.host, a.data, a.device, t_end=a.t_end, width=a.width, simulator=a.simulator)
 
 
 def _segment(a: Segment) -> None:
@@ -288,7 +291,6 @@ COMMANDS: dict[str, tuple[type, Callable]] = {
 --help``) and the function that runs it (``train`` parses its config itself: ``run_train``)."""
 
 
-# ----- errors and the top level ---------------------------------------------------------------------
 USER_ERRORS = (ValueError, OSError)
 """What a rejected input raises: the project's DatasetError and RunError (both ValueError), ValueError
 for a bad setting, OSError (FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError,

@@ -72,8 +72,7 @@ class Train:
     resume: Path | None = None
     """Continue the run folder RUN with its own RUN/config.json (only --device may change)."""
     continual: bool = False
-    """Continual learning (``continual.py``): train on [0, --window], predict and score the next
-    --horizon, add --step more and go on from the current model; the table goes to RUN/continual.json."""
+    """Continual learning: train on [0, --window], score the next --horizon, add --step, go on (continual.py)."""
     window: float = 0.15
     """--continual: the first round's observed span (a time in [0, 1], or frames with --frames)."""
     horizon: float = 0.15
@@ -95,10 +94,7 @@ class ResumeDevice:
 
 @dataclass
 class Calibrate:
-    """Choose a trained run's post-training extrapolation state again and store it.
-
-    Chosen on the training images (the handover's still Gaussians, the free bodies): for a run written
-    by an older tracegs, or after changing an extrapolation setting (e.g. ``--free-bodies False``)."""
+    """Choose a run's post-training extrapolation state again: a run of an older tracegs, or new settings."""
 
     run: Path
     """Run folder written by `tracegs train`."""
@@ -107,13 +103,11 @@ class Calibrate:
     free_bodies: bool | None = None
     """New ``extrapolation.free_bodies`` (default: the run's)."""
     joint_laws: bool | None = None
-    """New ``extrapolation.joint_laws`` (default: the run's): the rigid parts on a hinge or a rail
-    whose coordinate follows an identified force law (spring-damper, pendulum, friction stop) move by
-    it after the handover; what was tried and why each part kept the learned physics is printed."""
+    """New ``extrapolation.joint_laws`` (default: the run's): the parts whose identified motion model
+    beats the learned physics move by it; the report says per part what was tried and why."""
     surface_painters: Literal["edge", "hold"] | None = None
-    """New ``extrapolation.surface_painters`` (default: the run's): the moving Gaussians amid still ones
-    (a moving part's shadow) are carried by the physics until their path would leave their surface
-    (``edge``), or ``hold`` still after the handover."""
+    """New ``extrapolation.surface_painters`` (default: the run's): moving Gaussians amid still ones (a
+    shadow) move until they would leave their surface (``edge``), or ``hold`` still after the handover."""
     data: Path | None = None
     """Scene folder (default: the one the run was trained on)."""
     json: Path | None = None
@@ -165,11 +159,9 @@ class Eval:
     save_images: bool = True
     """Write the rendered frames into --out."""
     until: float | None = None
-    """Also render the new cameras' future up to this time, past the data (e.g. 1.5: twice a 0.75
-    training span), scored per time while there are images; the output says where nothing was checked."""
+    """Also render the new cameras' future up to this time past the data, scored while there are images."""
     motion: Literal["trace", "f_defo", "hold"] = "trace"
-    """How the run moves its Gaussians: trace (the learned physics past the handover), f_defo (the
-    deformation field past its span, as DefGS) or hold (f_defo's Gaussians at the span's end held still)."""
+    """trace (the learned physics past the handover), f_defo (as DefGS) or hold (the span's end held still)."""
     moving_dilation: int | None = None
     """Pixels by which the masks of the moving pixels grow (default 3, eval/moving.py)."""
     device: str = "auto"
@@ -178,12 +170,17 @@ class Eval:
 
 @dataclass
 class Export:
-    """Export a run's Gaussians at any time (the predicted future included) as 3DGS PLY or .splat files.
+    """Export a run's Gaussians at any time as 3DGS PLY or .splat files, or its parts as MJCF and URDF.
 
-    ``--time T`` writes one file, ``--times a:b:step`` a numbered sequence that splat editors play."""
+    ``--time T`` writes one file, ``--times a:b:step`` a numbered sequence that splat editors play;
+    ``--mjcf F`` / ``--urdf DIR`` its parts, joints and identified models for simulators (docs/EXPORT.md)."""
 
     run: Path
     """Run folder written by `tracegs train`."""
+    mjcf: Path | None = None
+    """Write a MuJoCo model (MJCF) of the run's parts and their models here, checked in MuJoCo."""
+    urdf: Path | None = None
+    """Write a URDF of them, with a mesh per part, into this folder."""
     time: float | None = None
     """The one time to export (t past the training span is predicted)."""
     times: str | None = None
@@ -216,6 +213,8 @@ class View:
     """Scene folder whose cameras are drawn (default: the one the run was trained on)."""
     t_end: float | None = None
     """End of the time slider (default: twice the training span's end)."""
+    simulator: bool = False
+    """Also offer the run's MuJoCo model (`tracegs export --mjcf`) as a motion, beside the learned one."""
     width: int = 320
     """Width in pixels of the rendered images."""
     device: str = "auto"

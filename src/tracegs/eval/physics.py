@@ -104,9 +104,12 @@ def _parts_at(predictor: Predictor, t: float, gt, radius: float) -> tuple[torch.
 
 
 @torch.no_grad()
-def physics_errors(predictor: Predictor, data: Path, times: list[float], radius: float = 0.03) -> dict:
+def physics_errors(
+    predictor: Predictor, data: Path, times: list[float], radius: float = 0.03, positions=None
+) -> dict:
     """Per-part trajectory error over ``times`` (> t_max) and angular-velocity error at t_max, for a
-    trained run (``extrapolate.Predictor``)."""
+    trained run (``extrapolate.Predictor``); ``positions(t)`` [N, 3]: where another motion puts the
+    Gaussians at ``t`` (a simulator's, ``export/simulate.py``), scored instead of the run's."""
     t_max = predictor.t_max
     gt = _gt(data)
     part_ids, transforms = gt[1], gt[2]
@@ -116,7 +119,7 @@ def physics_errors(predictor: Predictor, data: Path, times: list[float], radius:
     result = {"radius": radius, "parts": {}}
     per_time = {p: [] for p in parts}
     for t in times:
-        x_pred = predictor.gaussians_at(t)["means"]
+        x_pred = predictor.gaussians_at(t)["means"] if positions is None else positions(t)
         T_t = transforms(t)
         for p in parts:
             sel = owner == p

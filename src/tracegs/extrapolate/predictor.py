@@ -24,7 +24,7 @@ import torch
 
 from ..physics.free_body import apply_free_bodies
 from ..physics.integrate import num_substeps, step
-from ..physics.so3 import quat_normalize
+from ..physics.so3 import quat_multiply, quat_normalize, rotmat_to_quat
 from .joint_motion import apply_joint_laws
 from .settings import ExtrapolationConfig
 from .state import ExtrapolationState
@@ -153,6 +153,26 @@ class Predictor:
         start = model.deform(t0)  # where the physics, the free bodies and the joint parts start from
         gaussians = self._with_free_bodies(t0, t, self.physics_from(t0, t, start=start), start)
         return self._with_joint_laws(t0, t, gaussians, start)
+
+    @torch.no_grad()
+    def gaussians_carried(self, t: float, labels: torch.Tensor, motions) -> dict[str, torch.Tensor]:
+        """The Gaussians at ``t`` moved rigidly from f_defo's state at the handover, those of label ``k``
+        [N] (> 0) by ``motions(t)[k - 1]`` ([B, 4, 4], from the handover to ``t``; a simulator's
+        bodies, ``export/simulate.py``), the others held there; f_defo's before the handover."""
+        t0 = self.handover_time()
+        if t <= t0:
+            return self.model.deform(t)
+        start = self.model.deform(t0)
+        means, quats = start["means"].clone(), quat_normalize(start["quats"]).clone()
+        labels = labels.to(means.device)
+        for k, motion in enumerate(torch.as_tensor(np.asarray(motions(t)), dtype=torch.float64)):
+            rows = labels == k + 1
+            if bool(rows.any()):
+                turn, shift = motion[:3, :3].to(means.device), motion[:3, 3].to(means.device)
+                means[rows] = (start["means"][rows].double() @ turn.T + shift).to(means.dtype)
+                q = rotmat_to_quat(turn).to(quats.dtype)[None].expand(int(rows.sum()), 4)
+                quats[rows] = quat_multiply(q, quats[rows])
+        return {**start, "means": means, "quats": quats}
 
     @torch.no_grad()
     def parameters_at(self, t: float, motion: str = "trace") -> dict[str, torch.Tensor]:

@@ -19,10 +19,11 @@ from ..extrapolate import Predictor
 from ..segment.command import load_segments
 from ..segment.masks import colours, overlay
 
-MOTIONS = {"TRACE physics": "trace", "f_defo alone": "f_defo"}
+MOTIONS = {"TRACE physics": "trace", "f_defo alone": "f_defo", "MuJoCo model": "simulator"}
 """The viewer's motion models by their GUI label: ``trace`` (f_defo up to the handover, then the
-learned physics: what TRACE predicts) and ``f_defo`` (the deformation field queried at every time,
-past its training span too: what DefGS predicts)."""
+learned physics: what TRACE predicts), ``f_defo`` (the deformation field queried at every time,
+past its training span too: what DefGS predicts) and ``simulator`` (the run's MuJoCo model, ``tracegs
+export --mjcf``, run from the handover; with ``tracegs view --simulator``)."""
 
 
 @dataclass
@@ -67,7 +68,10 @@ def phase(t: float, t_max: float, motion: str) -> str:
     ``t_max``) or predicted, and by which motion model."""
     if t <= t_max:
         return f"t = {t:.3f}: **observed** (training span 0 - {t_max:.3f})"
-    how = "learned physics (TRACE)" if motion == "trace" else "f_defo past its training span (DefGS)"
+    how = {
+        "trace": "learned physics (TRACE)",
+        "simulator": "run's MuJoCo model (its parts and identified models)",
+    }.get(motion, "f_defo past its training span (DefGS)")
     return f"t = {t:.3f}: **predicted** by the {how}, {t - t_max:.3f} after the training end"
 
 

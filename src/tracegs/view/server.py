@@ -59,8 +59,18 @@ def round_step(step: float) -> float:
 class Viewer:
     """A running viewer: ``url``, ``port``, ``stop()``; ``wait()`` blocks until Ctrl-C."""
 
-    def __init__(self, server, run, cameras: DatasetCameras, t_end: float, width: int, config: ViewerConfig):
+    def __init__(
+        self,
+        server,
+        run,
+        cameras: DatasetCameras,
+        t_end: float,
+        width: int,
+        config: ViewerConfig,
+        simulated=None,
+    ):
         self.server, self.run, self.width, self.config = server, run, width, config
+        self.simulated = simulated  # the run's MuJoCo model run from the handover (``--simulator``)
         self.predictor = run.predictor.with_background(cameras.background)
         self.model = self.predictor.model
         self.t_max, self.t_end = self.predictor.t_max, t_end
@@ -123,8 +133,9 @@ class Viewer:
         self.phase = gui.add_markdown(phase(0.0, self.t_max, "trace"))
         self.play = gui.add_button("Play", hint="run the time slider in a loop")
         has_physics = model.dynamics is not None
+        choices = tuple(m for m, v in MOTIONS.items() if v != "simulator" or self.simulated is not None)
         self.motion = gui.add_dropdown(
-            "motion", tuple(MOTIONS), initial_value="TRACE physics" if has_physics else "f_defo alone",
+            "motion", choices, initial_value="TRACE physics" if has_physics else "f_defo alone",
             disabled=not has_physics or model.deformation is None,
             hint="after the training end: TRACE's learned physics, or f_defo queried past its span (DefGS)",
         )  # fmt: skip
@@ -263,7 +274,13 @@ class Viewer:
 
     def _gaussians(self, t: float, motion: str) -> dict:
         if self._geometry is None or self._geometry[0] != (t, motion):
-            self._geometry = ((t, motion), self.predictor.gaussians_at(t, motion))
+            if motion == "simulator":
+                geometry = self.predictor.gaussians_carried(
+                    t, self.simulated.labels, self.simulated.transforms
+                )
+            else:
+                geometry = self.predictor.gaussians_at(t, motion)
+            self._geometry = ((t, motion), geometry)
         return self._geometry[1]
 
 
@@ -277,12 +294,14 @@ def serve(
     t_end: float | None = None,
     width: int = 320,
     config: ViewerConfig | None = None,
+    simulator: bool = False,
 ) -> Viewer:
     """``tracegs view``: serve the run ``run`` at ``http://host:port/`` (a free port above ``port`` when
     it is taken; ``Viewer.port`` says which) and print the URL. The time slider runs from 0 to ``t_end``
     (default: twice the training span's end), images are rendered ``width`` pixels wide, the cameras of
     the scene folder ``data`` (default: the run's) are drawn as frusta. ``block``: serve until Ctrl-C;
-    else return the running viewer at once (``stop()`` ends it)."""
+    else return the running viewer at once (``stop()`` ends it). ``simulator``: the run's MuJoCo model
+    (``export/simulator.py``) is a third motion."""
     if not 1 <= int(port) <= 65535:
         raise RunError(f"--port {port}: not a TCP port (1-65535)")
     if not 8 <= int(width) <= 4096:
@@ -294,10 +313,15 @@ def serve(
         raise RunError(f"--t-end {t_end}: the time slider's end must be a positive number")
     loaded.predictor.check_time(t_end, "--t-end")  # the limit every command renders to
     cameras = dataset_cameras(Path(data or loaded.config.data), loaded.config.downscale)
+    simulated = None
+    if simulator:
+        from ..export.simulator import simulated_motion
+
+        simulated = simulated_motion(loaded, t_end)
     import viser  # here: the other commands do not need the web server
 
     server = viser.ViserServer(host=host, port=int(port), label="tracegs", verbose=False)
-    viewer = Viewer(server, loaded, cameras, t_end, int(width), config or ViewerConfig())
+    viewer = Viewer(server, loaded, cameras, t_end, int(width), config or ViewerConfig(), simulated)
     print(f"tracegs view: {viewer.url} (Ctrl-C stops)", flush=True)
     if block:
         viewer.wait()

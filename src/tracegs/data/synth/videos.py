@@ -39,6 +39,7 @@ def write_rig_videos(scene: Path, out: Path, fps: float = 30.0) -> list[Path]:
 
     from ..video import write_video
 
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = []
     for camera, items in sorted(_camera_frames(Path(scene))[0].items()):

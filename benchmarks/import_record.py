@@ -1,0 +1,125 @@
+"""The record of `tracegs import` (docs/results/import.json): how well it recovers a rig's cameras, and
+what training on the imported scene costs against training on the true (or shipped) calibration.
+
+Rows:
+* a synthetic rig (`benchmarks/import_closed_loop.py`'s json, or `--loop-scene`: a `tracegs synth
+  --textured-surroundings` scene and its import): cameras registered, centre and direction errors
+  after a similarity alignment; with `--loop-runs TRUE IMPORTED` the same training on both
+  (`tracegs train`, e.g. `cpu-fast`), extrapolation and interpolation MAE-PSNR through `tracegs eval`;
+* Panoptic basketball (`benchmarks/import_panoptic.py`'s json): the same errors against the shipped
+  calibration; with `--panoptic-runs SHIPPED IMPORTED` (`capture` trainings on the shipped layout and
+  on the imported scene) PSNR on the test cameras over the training span (`benchmarks/panoptic.py`).
+
+Usage: .venv/bin/python benchmarks/import_record.py [--loop F.json] [--loop-scene SCENE IMPORTED]
+    [--loop-runs TRUE IMPORTED] [--panoptic F.json] [--panoptic-runs SHIPPED IMPORTED] [--json OUT]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from tracegs.data.calibration import align_cameras
+from tracegs.data.synth.videos import imported_w2c, true_w2c
+from tracegs.eval.protocol import evaluate_run
+from tracegs.results import make_record, write_record
+
+COLUMNS = [
+    "rig", "cameras", "registered", "centre_max_pct", "centre_mean_pct", "direction_max_deg",
+    "direction_mean_deg", "metric", "true_poses", "imported",
+]  # fmt: skip
+
+
+def _errors(row: dict, errors: dict, cameras: int, registered: int) -> dict:
+    return row | {
+        "cameras": cameras,
+        "registered": registered,
+        "centre_max_pct": round(100 * errors["centre_error_max"], 2),
+        "centre_mean_pct": round(100 * errors["centre_error_mean"], 2),
+        "direction_max_deg": round(errors["direction_error_max_deg"], 3),
+        "direction_mean_deg": round(errors["direction_error_mean_deg"], 3),
+    }
+
+
+def _evaluation(run: Path) -> dict:
+    """``tracegs eval`` of ``run`` without LPIPS and images, kept in RUN/import_eval.json."""
+    cache = run / "import_eval.json"
+    if cache.is_file() and cache.stat().st_mtime > (run / "checkpoint.pt").stat().st_mtime:
+        return json.loads(cache.read_text())
+    result = evaluate_run(run, with_lpips=False, save_images=False)
+    cache.write_text(json.dumps(result))
+    return result
+
+
+def loop_rows(scene: Path, imported: Path, runs: list[Path] | None) -> list[dict]:
+    truth, found = true_w2c(scene), imported_w2c(imported)
+    names = sorted(found)
+    errors = align_cameras(np.stack([found[n] for n in names]), np.stack([truth[n] for n in names]))
+    report = json.loads((imported / "import.json").read_text())
+    rig = f"{scene.name} (synthetic, {report['timing']['size'][0]} px, {report['calibration'].get('camera_model')})"
+    base = _errors({"rig": rig}, errors, len(truth), len(names))
+    if not runs:
+        return [base]
+    true_eval, imported_eval = (_evaluation(r) for r in runs)
+    return [
+        base | {"metric": f"{split} MAE-PSNR", "true_poses": round(true_eval[split]["mae_psnr"], 2),
+                "imported": round(imported_eval[split]["mae_psnr"], 2)}
+        for split in ("extrapolation", "interpolation")
+    ]  # fmt: skip
+
+
+def panoptic_rows(found: dict, runs: list[Path] | None) -> list[dict]:
+    base = _errors(
+        {"rig": "Panoptic basketball (31 videos, 640x360)"},
+        {
+            "centre_error_max": found["centre_error_max_of_radius"],
+            "centre_error_mean": found["centre_error_mean_of_radius"],
+            "direction_error_max_deg": found["direction_error_max_deg"],
+            "direction_error_mean_deg": found["direction_error_mean_deg"],
+        },
+        found["cameras"],
+        found["registered"],
+    )
+    if not runs:
+        return [base]
+    shipped, imported = (_evaluation(r)["interpolation"] for r in runs)
+    return [
+        base | {"metric": "test cameras, training span: PSNR", "true_poses": round(shipped["psnr"], 2),
+                "imported": round(imported["psnr"], 2)}
+    ]  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--loop-scene", type=Path, nargs=2, metavar=("SCENE", "IMPORTED"))
+    ap.add_argument("--loop-runs", type=Path, nargs=2, metavar=("TRUE", "IMPORTED"))
+    ap.add_argument("--panoptic", type=Path, help="benchmarks/import_panoptic.py's json")
+    ap.add_argument("--panoptic-runs", type=Path, nargs=2, metavar=("SHIPPED", "IMPORTED"))
+    ap.add_argument("--json", type=Path)
+    args = ap.parse_args()
+    rows = []
+    if args.loop_scene:
+        rows += loop_rows(*args.loop_scene, args.loop_runs)
+    if args.panoptic:
+        rows += panoptic_rows(json.loads(args.panoptic.read_text()), args.panoptic_runs)
+    for r in rows:
+        print("  ".join(f"{k}={r.get(k)}" for k in COLUMNS))
+    if args.json is not None:
+        notes = (
+            "Camera errors after the similarity that best aligns the imported centres with the true ones "
+            "(percent of the rig's radius); trainings on the true and the imported calibration with the "
+            "same flags, scored by `tracegs eval` on each scene's own held-out frames."
+        )
+        command = "benchmarks/import_record.py " + " ".join(
+            f"--{k.replace('_', '-')} " + (" ".join(map(str, v)) if isinstance(v, list) else str(v))
+            for k, v in vars(args).items()
+            if v is not None and k != "json"
+        )
+        write_record(args.json, make_record("import", rows, command, columns=COLUMNS, notes=notes))
+
+
+if __name__ == "__main__":
+    main()
