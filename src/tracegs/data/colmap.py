@@ -92,6 +92,12 @@ def calibrate_rig(
         pycolmap.logging.minloglevel = level
 
 
+FOCAL_PASSES = 4
+"""Most mappings of a rig, each from the focal lengths the one before refined (``_focal_priors``)."""
+FOCAL_SETTLED = 0.02
+"""Median relative change of the refined focal lengths below which they have settled."""
+
+
 def _calibrate(
     pycolmap, image_root: Path, names: dict[str, list[str]], work: Path, camera_model: str, seed: int
 ):
@@ -134,15 +140,49 @@ def _calibrate(
     options.mapper.abs_pose_refine_focal_length = options.mapper.abs_pose_refine_extra_params = False
     options.num_threads = 2
     sparse = work / "sparse"
-    shutil.rmtree(sparse, ignore_errors=True)
-    sparse.mkdir()
-    models = pycolmap.incremental_mapping(database, image_root, sparse, options=options)
-    if not models:
-        raise DatasetError(f"{image_root}: COLMAP made no model of the cameras ({_counts_text(counts)})")
-    best_id, best = max(models.items(), key=lambda kv: kv[1].num_reg_images())
-    _refine(best)
+    focals = []
+    for _ in range(FOCAL_PASSES):  # mapped again from the refined focal lengths until they settle
+        shutil.rmtree(sparse, ignore_errors=True)
+        sparse.mkdir()
+        models = pycolmap.incremental_mapping(database, image_root, sparse, options=options)
+        if not models:
+            raise DatasetError(f"{image_root}: COLMAP made no model of the cameras ({_counts_text(counts)})")
+        best_id, best = max(models.items(), key=lambda kv: kv[1].num_reg_images())
+        _refine(best)
+        change, focal = _focal_priors(pycolmap, database, best)
+        focals.append(focal)
+        if change < FOCAL_SETTLED:
+            break
     best.write(sparse / str(best_id))  # the folder a later `--calibration` takes
-    return _rig_fit(best, names, counts, models, sparse / str(best_id))
+    fit = _rig_fit(best, names, counts, models, sparse / str(best_id))
+    fit.report["focal_passes"] = [round(f, 2) for f in focals]
+    return fit
+
+
+def _focal_priors(pycolmap, database: Path, model) -> tuple[float, float]:
+    """Set the database's focal-length priors to those the bundle adjustment of ``model`` refined;
+    returns the median relative change and the median refined focal length. The mapping holds the
+    priors while it assembles the rig (see ``_calibrate``), so a prior far from the truth (COLMAP's
+    1.2 x the larger side, against a wide lens's 0.7) folds the rig: mapping again from the refined
+    ones, until they settle, undoes it."""
+    db = pycolmap.Database.open(str(database))
+    changes, refined = [], []
+    try:
+        for camera in db.read_all_cameras():
+            if camera.camera_id not in model.cameras:
+                continue
+            new = model.cameras[camera.camera_id]
+            params = np.asarray(camera.params, dtype=np.float64).copy()
+            for i in camera.focal_length_idxs():
+                changes.append(abs(new.params[i] / params[i] - 1.0))
+                refined.append(float(new.params[i]))
+                params[i] = new.params[i]
+            camera.params = params
+            camera.has_prior_focal_length = True
+            db.update_camera(camera)
+    finally:
+        db.close()
+    return (float(np.median(changes)) if changes else 0.0), (float(np.median(refined)) if refined else 0.0)
 
 
 def _refine(model, rounds: int = 3) -> None:

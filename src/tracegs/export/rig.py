@@ -10,8 +10,8 @@ hinge it spins on) or a thrown part (a free joint over a floor); each free body 
 other moving groups keep the learned physics in the run, which has no simulator term: each is put
 on the hinge or rail that carries its Gaussians along f_defo's path (``extrapolate.joints.fit_joint``),
 moving on at its velocity there with its acceleration held (the learned physics' constant
-accelerations), or made a free body moving on at its last rigid motion, or fixed where it is not
-rigid; the body's ``why`` says which and why.
+accelerations); else each of its rigid parts (``chain.split_parts``) is, or moves as its learned
+physics does at the handover (``_twist_body``); the body's ``why`` says which and why.
 
 Each body's shape is the convex hull of its Gaussians' means at the handover (simulators collide
 convex shapes, and a part's Gaussians lie on its surface, which the hull closes), its mass and
@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..extrapolate.chain import split_parts
 from ..extrapolate.free_bodies import moving_groups
 from ..extrapolate.joints import MIN_GAUSSIANS, RIGID_TOLERANCE, fit_joint
 from ..physics.free_body import FreeBody, fit_rigid_velocity
@@ -41,6 +42,12 @@ inertias, so any density gives the same motion."""
 TWIST_RESIDUAL = 0.5
 """Largest RMS residual of a group's best rigid velocity field, relative to its RMS speed, for the
 learned physics to move it as one body."""
+AXLE = 0.5
+"""Farthest a twist's axis may pass from a group's centre, relative to its RMS radius, for it to be
+a hinge (a wheel turning on its axle); farther (a ball rolling about its contact, a disc sliding while
+it spins) it is a free body."""
+TWIST_INLIERS = 0.8
+"""Share of a group's Gaussians whose velocities its twist is refitted to."""
 SCREW = 0.2
 """A twist whose turn carries its points (turn x radius) faster than this fraction of its centre's
 speed turns (a hinge where the axis passes through the part and the motion along it is below this
@@ -171,36 +178,37 @@ def _held(times: np.ndarray, q: np.ndarray) -> tuple[float, float]:
     return float(c[1]), float(2 * c[0])
 
 
-def _learned_body(
-    name: str, rows, x0: torch.Tensor, path: list[torch.Tensor], times, settings, twist
-) -> Body:
-    """A moving group on the learned physics (module docstring): on the joint that carries it along
-    f_defo's path, else as its learned physics moves it at the handover (``_twist_body``)."""
-    points = _np(x0)
+def _on_joint(name: str, rows, x0: torch.Tensor, path: list[torch.Tensor], times, settings) -> tuple:
+    """``(body or None, rigid residual)``: a moving group on the learned physics on the hinge or rail
+    that carries it along f_defo's path (``fit_joint``, as a joint part's), moving on at its velocity
+    there with its acceleration held; None where none does."""
     joint, q, residuals = fit_joint(x0, path)
-    if joint is not None and residuals["rigid"] <= RIGID_TOLERANCE:
-        if residuals[joint["joint"]] <= residuals["rigid"] + settings.joint_fit_tolerance:
-            q = _np(q)
-            v, a = _held(times, q)
-            model = IdentifiedModel(
-                [("1", -1)], np.array([[a]]), (joint["joint"] == "hinge",), float(times[-1]),
-                np.array([q[-1]]), np.array([v]),
-            )  # fmt: skip
-            return Body(
-                name=name, rows=rows, joint=_joint_kind(joint), axis=_np(joint["axis"]),
-                pivot=_np(joint["pivot"]), model=model, velocity=np.array([v]), source="learned physics",
-                why="the learned physics (no model adopted): on the joint that carries it, moving on "
-                "at its velocity with its acceleration held", points=points,
-            )  # fmt: skip
-    return _twist_body(name, rows, points, twist, residuals["rigid"])
+    if joint is None or residuals["rigid"] > RIGID_TOLERANCE:
+        return None, residuals["rigid"]
+    if residuals[joint["joint"]] > residuals["rigid"] + settings.joint_fit_tolerance:
+        return None, residuals["rigid"]
+    q = _np(q)
+    v, a = _held(times, q)
+    model = IdentifiedModel(
+        [("1", -1)], np.array([[a]]), (joint["joint"] == "hinge",), float(times[-1]), np.array([q[-1]]),
+        np.array([v]),
+    )  # fmt: skip
+    body = Body(
+        name=name, rows=rows, joint=_joint_kind(joint), axis=_np(joint["axis"]), pivot=_np(joint["pivot"]),
+        model=model, velocity=np.array([v]), source="learned physics", points=_np(x0),
+        why="the learned physics (no model adopted): on the joint that carries it, moving on at its "
+        "velocity with its acceleration held",
+    )  # fmt: skip
+    return body, residuals["rigid"]
 
 
 def _twist_body(name: str, rows, points: np.ndarray, twist: tuple, rigid: float) -> Body:
     """A moving group that no joint carries along f_defo's path (its Gaussians slide over it, as on a
     spinning wheel or ball), by the learned physics' own rigid motion at the handover: the twist
     ``(v at its centre [3], w [3], residual, acceleration [3], angular acceleration [3])`` that best
-    fits f_trd's particle velocities over it. A turn about an axis through it is a hinge, a motion
-    without a turn a rail, any other a free body; a group that f_trd moves as no one body is fixed."""
+    fits f_trd's particle velocities over it. A turn about an axis near its centre (``AXLE``) is a
+    hinge, a motion without a turn a rail, any other a free body; a group that f_trd moves as no one
+    body is fixed."""
     v, w, residual, acceleration, angular = twist
     centre = points.mean(0)
     radius = float(np.sqrt(((points - centre) ** 2).sum(1).mean())) if len(points) else 0.0
@@ -213,7 +221,7 @@ def _twist_body(name: str, rows, points: np.ndarray, twist: tuple, rigid: float)
     if turn * radius > SCREW * speed:
         axis = w / turn
         pivot = centre + np.cross(w, v) / turn**2  # where the twist's velocity is along its axis
-        if abs(v @ axis) < SCREW * turn * radius and np.linalg.norm(pivot - centre) < 2 * radius:
+        if abs(v @ axis) < SCREW * turn * radius and np.linalg.norm(pivot - centre) < AXLE * radius:
             rate = float(angular @ axis)
             model = IdentifiedModel(
                 [("1", -1)], np.array([[rate]]), (True,), 0.0, np.zeros(1), np.array([turn])
@@ -236,17 +244,21 @@ def _twist_body(name: str, rows, points: np.ndarray, twist: tuple, rigid: float)
     )  # fmt: skip
 
 
+@torch.no_grad()
 def _twist(model, x0: torch.Tensor, t0: float) -> tuple:
     """The twist of f_trd's particle velocities over the Gaussians at ``x0`` [M, 3] at ``t0``
-    (``_twist_body``), the residual relative to their RMS speed."""
+    (``_twist_body``), refitted to the ``TWIST_INLIERS`` it fits best (a group's edge can hold
+    Gaussians of the still part it touches), and the residual there relative to their RMS speed."""
     params = model.query_dynamics(x0, t0)
     u = particle_velocity(x0, params.velocity, params.angular_velocity).double()
-    centre = x0.double().mean(0)
-    v, w = fit_rigid_velocity(x0, u, centre)
-    fitted = v.to(u.device) + torch.cross(w.to(u.device).expand_as(u), x0.double() - centre, dim=-1)
+    x, centre = x0.double(), x0.double().mean(0)
+    keep = torch.ones(len(x), dtype=torch.bool, device=x.device)
+    for _ in range(2):
+        v, w = (c.to(x.device) for c in fit_rigid_velocity(x[keep], u[keep], centre))
+        error = (u - v - torch.cross(w.expand_as(x), x - centre, dim=-1)).norm(dim=-1)
+        keep = error <= error.quantile(TWIST_INLIERS)
     residual = float(
-        (u - fitted).norm(dim=-1).square().mean().sqrt()
-        / u.norm(dim=-1).square().mean().sqrt().clamp_min(1e-300)
+        error[keep].square().mean().sqrt() / u[keep].norm(dim=-1).square().mean().sqrt().clamp_min(1e-300)
     )
     return (
         _np(v), _np(w), residual, _np(params.acceleration.double().mean(0)),
@@ -279,7 +291,7 @@ def find_rig(predictor, extent: float, up: np.ndarray | None = None) -> Rig:
                 taken |= rows
     steps = int(math.floor(t0 / model.dt_max + 1e-6))
     times = np.array([max(0.0, t0 - k * model.dt_max) for k in range(steps, -1, -1)])
-    groups = moving_groups(predictor, t0, extent, settings.free_body_window)[3]
+    _, _, u, groups = moving_groups(predictor, t0, extent, settings.free_body_window)
     path = None
     for label in range(1, int(groups.max()) + 1 if groups.numel() else 1):
         rows = (groups == label) & ~taken
@@ -287,11 +299,18 @@ def find_rig(predictor, extent: float, up: np.ndarray | None = None) -> Rig:
             continue
         if path is None:
             path = [model.deform(float(t))["means"] for t in times]
-        x0 = start[rows]
-        twist = _twist(model, x0, t0)
-        bodies.append(
-            _learned_body(f"group{label}", rows, x0, [p[rows] for p in path], times, settings, twist)
-        )
+        body, _ = _on_joint(f"group{label}", rows, start[rows], [p[rows] for p in path], times, settings)
+        if body is not None:
+            bodies.append(body)
+        else:  # its rigid parts (as a joint part's group is cut), each on a joint or by its twist
+            split = split_parts(start, u, path, times, rows, 0.0025 * extent).to(rows.device)
+            pieces = [rows.clone().index_put_((rows,), split == k) for k in range(1, int(split.max()) + 1)]
+            pieces = [p for p in pieces if int(p.sum()) >= MIN_GAUSSIANS] or [rows]
+            for i, piece in enumerate(pieces):
+                name = f"group{label}" + (f"_{i + 1}" if len(pieces) > 1 else "")
+                x0 = start[piece]
+                body, rigid = _on_joint(name, piece, x0, [p[piece] for p in path], times, settings)
+                bodies.append(body or _twist_body(name, piece, _np(x0), _twist(model, x0, t0), rigid))
         taken |= rows
     for body in bodies:  # a child's joint is in its parent's frame at the handover: the world's
         if body.parent is not None and body.parent >= len(bodies):
