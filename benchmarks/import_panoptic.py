@@ -13,11 +13,11 @@ Usage: .venv/bin/python benchmarks/import_panoptic.py [--data ../shared/data/pan
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
+from import_closed_loop import summarise
 
 from tracegs.data.calibration import align_cameras, read_calibration
 from tracegs.data.importer import import_scene
@@ -85,18 +85,7 @@ def main() -> None:
         "import_s": round(imported - written, 1),
     }
     ok = row["registered"] == row["cameras"] and row["centre_error_max_of_radius"] <= CENTRE_TARGET
-    print(
-        f"Panoptic basketball: {row['registered']}/{row['cameras']} cameras registered, "
-        f"reprojection error {row['reprojection_error_px']:.2f} px, import {row['import_s']:.0f} s\n"
-        f"centres: {100 * row['centre_error_max_of_radius']:.2f}% of the dome's radius at most "
-        f"(mean {100 * row['centre_error_mean_of_radius']:.2f}%; target {100 * CENTRE_TARGET:g}%)\n"
-        f"directions: {row['direction_error_max_deg']:.3f} degrees at most "
-        f"(mean {row['direction_error_mean_deg']:.3f})\n"
-        f"{'within' if ok else 'NOT within'} the target"
-    )
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(row | {"within_target": ok}, indent=2) + "\n")
+    summarise(row, "Panoptic basketball", "the dome's radius", ok, args.json)
 
 
 if __name__ == "__main__":

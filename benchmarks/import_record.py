@@ -33,6 +33,13 @@ COLUMNS = [
 ]  # fmt: skip
 
 
+NOTES = (
+    "Camera errors after the similarity that best aligns the imported centres with the true ones "
+    "(percent of the rig's radius); trainings on the true and the imported calibration with the "
+    "same flags, scored by `tracegs eval` on each scene's own held-out frames."
+)
+
+
 def _errors(row: dict, errors: dict, cameras: int, registered: int) -> dict:
     return row | {
         "cameras": cameras,
@@ -108,17 +115,12 @@ def main() -> None:
     for r in rows:
         print("  ".join(f"{k}={r.get(k)}" for k in COLUMNS))
     if args.json is not None:
-        notes = (
-            "Camera errors after the similarity that best aligns the imported centres with the true ones "
-            "(percent of the rig's radius); trainings on the true and the imported calibration with the "
-            "same flags, scored by `tracegs eval` on each scene's own held-out frames."
-        )
         command = "benchmarks/import_record.py " + " ".join(
             f"--{k.replace('_', '-')} " + (" ".join(map(str, v)) if isinstance(v, list) else str(v))
             for k, v in vars(args).items()
             if v is not None and k != "json"
         )
-        write_record(args.json, make_record("import", rows, command, columns=COLUMNS, notes=notes))
+        write_record(args.json, make_record("import", rows, command, columns=COLUMNS, notes=NOTES))
 
 
 if __name__ == "__main__":

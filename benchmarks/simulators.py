@@ -30,7 +30,21 @@ from tracegs.run import load_run
 
 HINGE = {"rotation", "damped_rotation", "friction_stop", "hinged_chain", "carried", "rotation+translation"}
 RAIL = {"translation", "damped_translation"}
-COLUMNS = ["scene", "part", "truth", "joint", "joint_right", "axis_deg", "pivot_pct", "mujoco_path_pct", "run_path_pct"]
+COLUMNS = [
+    "scene",
+    "part",
+    "truth",
+    "joint",
+    "joint_right",
+    "axis_deg",
+    "pivot_pct",
+    "mujoco_path_pct",
+    "run_path_pct",
+]
+NOTES = (
+    "Each run's MJCF run in MuJoCo from the handover against the ground truth, per moving part; "
+    "paths in percent of the scene size over the future, MuJoCo's beside the run's own."
+)
 TIMES = 8
 DELTA = 0.01
 
@@ -149,11 +163,7 @@ def main() -> None:
         print("  ".join(f"{k}={r.get(k)}" for k in COLUMNS))
     if args.json is not None:
         command = "benchmarks/simulators.py " + " ".join(str(r) for r in args.runs)
-        notes = (
-            "Each run's MJCF run in MuJoCo from the handover against the ground truth, per moving part; "
-            "paths in percent of the scene size over the future, MuJoCo's beside the run's own."
-        )
-        write_record(args.json, make_record("simulators", rows, command, columns=COLUMNS, notes=notes))
+        write_record(args.json, make_record("simulators", rows, command, columns=COLUMNS, notes=NOTES))
 
 
 if __name__ == "__main__":

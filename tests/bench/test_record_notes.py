@@ -28,6 +28,7 @@ fields_floor, horizon, lpips_calibration = map(_script, ("fields_floor", "horizo
 nonconstant_forces, panoptic, segmentation = map(_script, ("nonconstant_forces", "panoptic", "segmentation"))
 static_quality, training_speed = map(_script, ("static_quality", "training_speed"))
 ball, moving_regions = _script("ball"), _script("moving_regions")
+simulators, import_record = _script("simulators"), _script("import_record")
 
 NOTE = "Round 0 trains 1000 static + 4000 dynamic steps, each later round 1000."
 DTYPE_ROW = {"what": training_speed.DTYPE_ROWS, "setting": "bf16, 2 thread(s)"}
@@ -35,6 +36,8 @@ NOTES = {
     "appearance_ceiling": appearance_ceiling.record_notes(12),
     "ball": ball.NOTES,
     "moving_regions": moving_regions.NOTES,
+    "simulators": simulators.NOTES,
+    "import_record": import_record.NOTES,
     "continual": continual.record_notes(),
     "continual, --note": continual.record_notes(NOTE),
     "fields_floor": fields_floor.record_notes(6),

@@ -105,6 +105,29 @@ def test_phase_says_observed_up_to_the_training_end_and_predicted_after():
     assert "observed" in phase(0.6, 0.6, "trace") and "predicted" not in phase(0.6, 0.6, "trace")
     assert "predicted" in phase(0.61, 0.6, "trace") and "physics" in phase(0.61, 0.6, "trace")
     assert "DefGS" in phase(0.9, 0.6, "f_defo")
+    assert "MuJoCo" in phase(0.9, 0.6, "simulator")
+
+
+def test_the_simulator_motion_is_offered_with_the_flag_and_moves_by_the_mujoco_model(tiny_run):
+    pytest.importorskip("mujoco")
+    from tracegs.view import serve
+
+    run, scene = tiny_run
+    viewer = serve(run, port=free_port(), data=scene, device="cpu", block=False, simulator=True)
+    try:
+        assert "MuJoCo model" in viewer.motion.options
+        t = viewer.t_max + 0.1
+        moved = viewer._gaussians(t, "simulator")["means"]
+        simulated = viewer.simulated
+        expected = viewer.predictor.gaussians_carried(t, simulated.labels, simulated.transforms)["means"]
+        torch.testing.assert_close(moved, expected)
+    finally:
+        viewer.stop()
+    plain = serve(run, port=free_port(), data=scene, device="cpu", block=False)
+    try:
+        assert "MuJoCo model" not in plain.motion.options
+    finally:
+        plain.stop()
 
 
 def test_dataset_cameras_once_per_pose_and_a_note_without_a_scene(tiny_run, tmp_path):

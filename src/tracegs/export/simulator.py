@@ -54,14 +54,15 @@ def path_errors(predictor, rig, motion, times: list[float], extent: float) -> li
     ]
 
 
-def build_model(loaded) -> tuple:
-    """``(rig, hulls, MJCF text, report)`` of the loaded run ``loaded`` (``run.load_run``)."""
+def build_model(loaded, data: Path | None = None) -> tuple:
+    """``(rig, hulls, MJCF text, report)`` of the loaded run ``loaded`` (``run.load_run``), the scene's
+    extent and up from the training cameras of ``data`` (default: the run's scene)."""
     predictor, cfg = loaded.predictor, loaded.config
     if predictor.model.dynamics is None:
         raise RunError(
             f"{loaded.path}: a {predictor.model.method} run has no physics to export (train TRACE)"
         )
-    extent, up = scene_frame(cfg.data, cfg.downscale, predictor.t_max)
+    extent, up = scene_frame(Path(data or cfg.data), cfg.downscale, predictor.t_max)
     rig = find_rig(predictor, extent, up)
     hulls = rig_hulls(rig)
     xml, report = mjcf_text(rig, hulls)
@@ -74,10 +75,10 @@ def build_model(loaded) -> tuple:
     return rig, hulls, xml, facts | report
 
 
-def simulated_motion(loaded, t_end: float):
-    """The run's MuJoCo model run from the handover to ``t_end`` (``SimulatedMotion``): the viewer's
-    third motion."""
-    rig, _, xml, _ = build_model(loaded)
+def simulated_motion(loaded, t_end: float, data: Path | None = None):
+    """The run's MuJoCo model (``build_model``, its scene ``data``) run from the handover to ``t_end``
+    (``SimulatedMotion``): the viewer's third motion."""
+    rig, _, xml, _ = build_model(loaded, data)
     return simulate(xml, rig, t_end)
 
 

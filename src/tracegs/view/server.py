@@ -317,7 +317,7 @@ def serve(
     if simulator:
         from ..export.simulator import simulated_motion
 
-        simulated = simulated_motion(loaded, t_end)
+        simulated = simulated_motion(loaded, t_end, Path(data or loaded.config.data))
     import viser  # here: the other commands do not need the web server
 
     server = viser.ViserServer(host=host, port=int(port), label="tracegs", verbose=False)
