@@ -312,7 +312,9 @@ class _Writer:
             ET.SubElement(element, "geom", type="mesh", mesh=body.name, density="0", rgba=rgba, **bits)
             if body.floor is not None:  # it hits its floor as a ball (``rig.Body.floor``), not shown
                 radius = f"{body.floor['radius']:.9g}"
-                ET.SubElement(element, "geom", type="sphere", size=radius, density="0", rgba="0 0 0 0", **collides)
+                ET.SubElement(
+                    element, "geom", type="sphere", size=radius, density="0", rgba="0 0 0 0", **collides
+                )
             entry.update(
                 mass=hull.mass, centre_of_mass=(hull.centre if k not in centres else centres[k]).tolist()
             )
