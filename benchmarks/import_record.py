@@ -1,17 +1,19 @@
 """The record of `tracegs import` (docs/results/import.json): how well it recovers a rig's cameras, and
-what training on the imported scene costs against training on the true (or shipped) calibration.
+what training on the recovered cameras costs against training on the true (or shipped) ones.
 
 Rows:
-* a synthetic rig (`benchmarks/import_closed_loop.py`'s json, or `--loop-scene`: a `tracegs synth
-  --textured-surroundings` scene and its import): cameras registered, centre and direction errors
-  after a similarity alignment; with `--loop-runs TRUE IMPORTED` the same training on both
-  (`tracegs train`, e.g. `cpu-fast`), extrapolation and interpolation MAE-PSNR through `tracegs eval`;
-* Panoptic basketball (`benchmarks/import_panoptic.py`'s json): the same errors against the shipped
-  calibration; with `--panoptic-runs SHIPPED IMPORTED` (`capture` trainings on the shipped layout and
-  on the imported scene) PSNR on the test cameras over the training span (`benchmarks/panoptic.py`).
+* a synthetic rig (`--loop-scene SCENE IMPORTED`: a `tracegs synth --textured-surroundings` scene and
+  its import from the MP4s of `synth/videos.py`): cameras registered, centre and direction errors
+  after a similarity alignment; with `--loop-runs TRUE IMPORTED` the same training (`cpu-fast`) on the
+  scene rendered without the surroundings (`tracegs synth`, same rig) and on its copy posed by the
+  import (`--posed-copy`), extrapolation and interpolation MAE-PSNR through `tracegs eval`;
+* Panoptic basketball (`--panoptic`: `benchmarks/import_panoptic.py`'s json): the same errors against
+  the shipped calibration; with `--panoptic-runs SHIPPED IMPORTED` (`capture` trainings on the shipped
+  layout and on the imported scene) PSNR on the test cameras over the training span.
 
-Usage: .venv/bin/python benchmarks/import_record.py [--loop F.json] [--loop-scene SCENE IMPORTED]
-    [--loop-runs TRUE IMPORTED] [--panoptic F.json] [--panoptic-runs SHIPPED IMPORTED] [--json OUT]
+Usage: .venv/bin/python benchmarks/import_record.py [--loop-scene SCENE IMPORTED] [--loop-runs TRUE IMPORTED]
+    [--panoptic F.json] [--panoptic-runs SHIPPED IMPORTED] [--json OUT]
+       .venv/bin/python benchmarks/import_record.py --posed-copy PLAIN IMPORTED OUT
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from tracegs.data.calibration import align_cameras
-from tracegs.data.synth.videos import imported_w2c, true_w2c
+from tracegs.data.synth.videos import camera_name, imported_w2c, true_w2c
 from tracegs.eval.protocol import evaluate_run
 from tracegs.results import make_record, write_record
 
@@ -59,6 +61,31 @@ def _evaluation(run: Path) -> dict:
     result = evaluate_run(run, with_lpips=False, save_images=False)
     cache.write_text(json.dumps(result))
     return result
+
+
+def posed_copy(scene: Path, imported: Path, out: Path) -> Path:
+    """The `tracegs synth` scene ``scene`` with each camera's pose and intrinsics those ``tracegs import``
+    recovered for it (``imported``, the same rig's import, in its own frame), its images linked: the
+    same training on the true and on the recovered cameras, on the scene's own images (an import
+    trains on its decoded video frames, which a synthetic scene with textured surroundings makes hard
+    for a preset built for objects). Its ``gt/`` is left out: it is in the true frame."""
+    cameras = {}
+    for split in ("train", "val", "test"):
+        path = imported / f"transforms_{split}.json"
+        if path.is_file():
+            for f in json.loads(path.read_text())["frames"]:
+                cameras[f["camera"]] = {
+                    k: f[k] for k in ("transform_matrix", "fl_x", "fl_y", "cx", "cy", "w", "h")
+                }
+    out.mkdir(parents=True, exist_ok=True)
+    for split in ("train", "val", "test"):
+        data = json.loads((scene / f"transforms_{split}.json").read_text())
+        frames = [f | cameras[camera_name(f["camera_id"])] for f in data["frames"]]
+        top = {k: v for k, v in data.items() if k not in ("frames", "aabb", "camera_angle_x")}
+        (out / f"transforms_{split}.json").write_text(json.dumps(top | {"frames": frames}, indent=1))
+        if not (out / split).exists():
+            (out / split).symlink_to((scene / split).resolve())
+    return out
 
 
 def loop_rows(scene: Path, imported: Path, runs: list[Path] | None) -> list[dict]:
@@ -105,8 +132,18 @@ def main() -> None:
     ap.add_argument("--loop-runs", type=Path, nargs=2, metavar=("TRUE", "IMPORTED"))
     ap.add_argument("--panoptic", type=Path, help="benchmarks/import_panoptic.py's json")
     ap.add_argument("--panoptic-runs", type=Path, nargs=2, metavar=("SHIPPED", "IMPORTED"))
+    ap.add_argument(
+        "--posed-copy",
+        type=Path,
+        nargs=3,
+        metavar=("PLAIN", "IMPORTED", "OUT"),
+        help="write OUT: the synth scene PLAIN on the cameras of IMPORTED (posed_copy), and stop",
+    )
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
+    if args.posed_copy:
+        print(posed_copy(*args.posed_copy))
+        return
     rows = []
     if args.loop_scene:
         rows += loop_rows(*args.loop_scene, args.loop_runs)

@@ -30,7 +30,7 @@ import torch
 
 from ..extrapolate.chain import split_parts
 from ..extrapolate.free_bodies import moving_groups
-from ..extrapolate.joints import MIN_GAUSSIANS, RIGID_TOLERANCE, fit_joint
+from ..extrapolate.joints import MIN_GAUSSIANS, RIGID_TOLERANCE, fit_joint, part_transforms
 from ..physics.free_body import FreeBody, fit_rigid_velocity
 from ..physics.identify import IdentifiedModel
 from ..physics.integrate import particle_velocity
@@ -39,6 +39,9 @@ DENSITY = 1000.0
 """Mass per cubic scene unit of every body (water's, in kilograms, for a scene in metres). The
 identified models fix accelerations, not masses: the exported forces are scaled by the bodies'
 inertias, so any density gives the same motion."""
+RAIL_TURN = 0.1
+"""Smallest turn (radians) over the span of a hinge that a group on the learned physics is put on;
+a straight motion is a turn about a far axis too, and a rail is what it is."""
 TWIST_RESIDUAL = 0.5
 """Largest RMS residual of a group's best rigid velocity field, relative to its RMS speed, for the
 learned physics to move it as one body."""
@@ -179,14 +182,15 @@ def _held(times: np.ndarray, q: np.ndarray) -> tuple[float, float]:
 
 
 def _on_joint(name: str, rows, x0: torch.Tensor, path: list[torch.Tensor], times, settings) -> tuple:
-    """``(body or None, rigid residual)``: a moving group on the learned physics on the hinge or rail
-    that carries it along f_defo's path (``fit_joint``, as a joint part's), moving on at its velocity
-    there with its acceleration held; None where none does."""
-    joint, q, residuals = fit_joint(x0, path)
+    """``(body or None, rigid residual, the joint's residual)``: a moving group on the learned physics on the hinge or rail
+    that carries it along its ``path`` (f_defo's; ``fit_joint``, as a joint part's; a hinge that turns
+    less than ``RAIL_TURN`` is a rail), moving on at its velocity there with its acceleration held;
+    None where none does."""
+    joint, q, residuals = fit_joint(x0, path, RAIL_TURN)
     if joint is None or residuals["rigid"] > RIGID_TOLERANCE:
-        return None, residuals["rigid"]
+        return None, residuals["rigid"], math.inf
     if residuals[joint["joint"]] > residuals["rigid"] + settings.joint_fit_tolerance:
-        return None, residuals["rigid"]
+        return None, residuals["rigid"], math.inf
     q = _np(q)
     v, a = _held(times, q)
     model = IdentifiedModel(
@@ -199,7 +203,7 @@ def _on_joint(name: str, rows, x0: torch.Tensor, path: list[torch.Tensor], times
         why="the learned physics (no model adopted): on the joint that carries it, moving on at its "
         "velocity with its acceleration held",
     )  # fmt: skip
-    return body, residuals["rigid"]
+    return body, residuals["rigid"], residuals[joint["joint"]]
 
 
 def _twist_body(name: str, rows, points: np.ndarray, twist: tuple, rigid: float) -> Body:
@@ -266,6 +270,41 @@ def _twist(model, x0: torch.Tensor, t0: float) -> tuple:
     )  # fmt: skip
 
 
+def _carried(bodies: list[Body], start: torch.Tensor, path: list[torch.Tensor], times, settings) -> None:
+    """Each free body (a free body of the run, or one on the learned physics) that turns or slides on a
+    joint of its own in the frame of a larger body (a wing on a drifting satellite, a chain's second
+    link) becomes that body's child on that joint: its path in the other's frame (f_defo's rigid
+    transforms of that body) carried by a hinge or a rail (``_on_joint``), the body whose joint fits
+    it best; in place. Its motion is then its joint's, moving on at its velocity there."""
+    frames = {}
+    for k, body in enumerate(bodies):
+        if int(body.rows.sum()) >= MIN_GAUSSIANS:
+            x = start[body.rows].double().cpu()
+            frames[k] = part_transforms(x, [p[body.rows].double().cpu() for p in path])
+    parents: set[int] = set()
+    for k in sorted(range(len(bodies)), key=lambda i: int(bodies[i].rows.sum())):  # the smallest first
+        body = bodies[k]
+        if body.source == "identified model" or body.joint != "free" or body.parent is not None:
+            continue
+        track = torch.stack([p[body.rows].double().cpu() for p in path])
+        best = None
+        for j, (rotation, translation) in frames.items():  # a carrier is larger than what it carries
+            if j == k or bodies[j].parent is not None or int(bodies[j].rows.sum()) <= int(body.rows.sum()):
+                continue
+            relative = (track - translation[:, None]) @ rotation  # R^T (x - T), row vectors
+            child, _, score = _on_joint(body.name, body.rows, relative[-1], list(relative), times, settings)
+            if child is not None and (best is None or score < best[0]):
+                best = (score, j, child)
+        if best is not None and k not in parents:
+            _, j, child = best
+            child.parent, child.why = (
+                j,
+                child.why.replace("on the joint", f"on a joint in {bodies[j].name}'s frame"),
+            )
+            bodies[k] = child
+            parents.add(j)
+
+
 @torch.no_grad()
 def find_rig(predictor, extent: float, up: np.ndarray | None = None) -> Rig:
     """The rig of the trained run ``predictor`` (``extrapolate.Predictor``; ``extent``: the scene's
@@ -299,7 +338,7 @@ def find_rig(predictor, extent: float, up: np.ndarray | None = None) -> Rig:
             continue
         if path is None:
             path = [model.deform(float(t))["means"] for t in times]
-        body, _ = _on_joint(f"group{label}", rows, start[rows], [p[rows] for p in path], times, settings)
+        body, _, _ = _on_joint(f"group{label}", rows, start[rows], [p[rows] for p in path], times, settings)
         if body is not None:
             bodies.append(body)
         else:  # its rigid parts (as a joint part's group is cut), each on a joint or by its twist
@@ -309,9 +348,13 @@ def find_rig(predictor, extent: float, up: np.ndarray | None = None) -> Rig:
             for i, piece in enumerate(pieces):
                 name = f"group{label}" + (f"_{i + 1}" if len(pieces) > 1 else "")
                 x0 = start[piece]
-                body, rigid = _on_joint(name, piece, x0, [p[piece] for p in path], times, settings)
+                body, rigid, _ = _on_joint(name, piece, x0, [p[piece] for p in path], times, settings)
                 bodies.append(body or _twist_body(name, piece, _np(x0), _twist(model, x0, t0), rigid))
         taken |= rows
+    if path is None and any(b.joint == "free" and b.source != "identified model" for b in bodies):
+        path = [model.deform(float(t))["means"] for t in times]
+    if path is not None:
+        _carried(bodies, start, path, times, settings)
     for body in bodies:  # a child's joint is in its parent's frame at the handover: the world's
         if body.parent is not None and body.parent >= len(bodies):
             body.parent = None

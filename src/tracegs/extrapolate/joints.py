@@ -69,14 +69,18 @@ def part_transforms(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[torch.T
     return torch.stack([r for r, _ in fits]), torch.stack([t for _, t in fits])
 
 
-def fit_joint(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[dict | None, torch.Tensor | None, dict]:
+def fit_joint(
+    x0: torch.Tensor, path: list[torch.Tensor], min_turn: float = 0.0
+) -> tuple[dict | None, torch.Tensor | None, dict]:
     """``(joint, q [T], residuals)`` of the part whose means are ``x0`` [M, 3] at the handover and
     ``path`` [T] x [M, 3] at the frames: the hinge or the slider (``fit_hinge`` about the part's mean,
     refitted to the positions by ``refine_hinge``; ``fit_slider``) whose transforms of ``q`` reproduce ``path`` with the smaller RMS residual, and
     ``residuals["rigid"]``, that of the best rigid transform of each frame. The
     residuals are relative to the part's radius (RMS distance from its mean at the handover); the
     joint is stored as plain tensors: ``{"joint": "hinge" | "slider", "axis"`` (the hinge's axis or
-    the rail's direction) ``, "pivot"`` (zeros on a rail) ``, "base_rotation", "base_translation"}``."""
+    the rail's direction) ``, "pivot"`` (zeros on a rail) ``, "base_rotation", "base_translation"}``.
+    ``min_turn``: a hinge whose angle spans less over the path is no candidate (a straight motion is
+    also a turn about a far axis)."""
     x = x0.detach().double().cpu()
     truth = torch.stack([p.detach().double().cpu() for p in path])
     radius = max(float((x - x.mean(0)).square().sum(-1).mean().sqrt()), 1e-12)
@@ -97,6 +101,9 @@ def fit_joint(x0: torch.Tensor, path: list[torch.Tensor]) -> tuple[dict | None, 
     }
     residuals, best = {}, None
     for name, (joint, fitted, q) in candidates.items():
+        if name == "hinge" and float(q.max() - q.min()) < min_turn:
+            residuals[name] = math.inf
+            continue
         joint = {**joint, "base_rotation": fitted.base_rotation, "base_translation": fitted.base_translation}
         residual = rms_distance(transformed_points(x, *joint_transforms(joint, q)), truth) / radius
         residuals[name] = residual if math.isfinite(residual) else math.inf
