@@ -56,12 +56,7 @@ def main() -> None:
         "resolution": args.resolution,
         "cameras": result["cameras"],
         "registered": result["registered"],
-        "reprojection_error_px": report["calibration"].get("mean_reprojection_error_px"),
-        "points": report["calibration"].get("points"),
-        "centre_error_max_of_radius": result["centre_error_max"],
-        "centre_error_mean_of_radius": result["centre_error_mean"],
-        "direction_error_max_deg": result["direction_error_max_deg"],
-        "direction_error_mean_deg": result["direction_error_mean_deg"],
+        **error_cells(result, report),
         "camera_model": args.camera_model,
         "calib_frames": args.calib_frames,
         "undistortion": report["undistortion"],
@@ -74,6 +69,18 @@ def main() -> None:
         and row["direction_error_max_deg"] <= DIRECTION_TARGET
     )
     summarise(row, f"{args.scene} at {args.resolution} px", "the rig's radius", ok, args.json)
+
+
+def error_cells(errors: dict, report: dict) -> dict:
+    """The row cells of an import's ``report`` and its alignment's ``errors`` (``align_cameras``)."""
+    return {
+        "reprojection_error_px": report["calibration"].get("mean_reprojection_error_px"),
+        "points": report["calibration"].get("points"),
+        "centre_error_max_of_radius": errors["centre_error_max"],
+        "centre_error_mean_of_radius": errors["centre_error_mean"],
+        "direction_error_max_deg": errors["direction_error_max_deg"],
+        "direction_error_mean_deg": errors["direction_error_mean_deg"],
+    }
 
 
 def summarise(row: dict, rig: str, radius: str, ok: bool, path: Path | None) -> None:

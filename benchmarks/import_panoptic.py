@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from import_closed_loop import summarise
+from import_closed_loop import error_cells, summarise
 
 from tracegs.data.calibration import align_cameras, read_calibration
 from tracegs.data.importer import import_scene
@@ -72,13 +72,8 @@ def main() -> None:
         "cameras": len(names),
         "registered": len(kept),
         "dropped": report["dropped"],
-        "reprojection_error_px": report["calibration"].get("mean_reprojection_error_px"),
-        "points": report["calibration"].get("points"),
         "dome_radius": errors["rig_radius"],
-        "centre_error_max_of_radius": errors["centre_error_max"],
-        "centre_error_mean_of_radius": errors["centre_error_mean"],
-        "direction_error_max_deg": errors["direction_error_max_deg"],
-        "direction_error_mean_deg": errors["direction_error_mean_deg"],
+        **error_cells(errors, report),
         "camera_model": args.camera_model,
         "calib_frames": args.calib_frames,
         "videos_s": round(written - started, 1),

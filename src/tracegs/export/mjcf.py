@@ -152,13 +152,19 @@ def _pendulum_centre(body: Body, hull: Hull, gravity: np.ndarray) -> np.ndarray 
 
 
 def _inertial(parent: ET.Element, hull: Hull | None, centre: np.ndarray | None, frame: np.ndarray) -> None:
-    if hull is None:
-        ET.SubElement(parent, "inertial", pos=_vec(frame), mass="1e-6", diaginertia="1e-9 1e-9 1e-9")
+    if hull is None:  # a frame that only carries (a turntable whose own Gaussians keep the learned physics)
+        ET.SubElement(parent, "inertial", pos="0 0 0", mass="1e-6", diaginertia="1e-9 1e-9 1e-9")
         return
     c = (hull.centre if centre is None else centre) - frame
     i = hull.inertia
     full = [i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2]]
     ET.SubElement(parent, "inertial", pos=_vec(c), mass=f"{hull.mass:.9g}", fullinertia=_vec(full))
+
+
+def _frame(body: Body) -> np.ndarray:
+    """Where a body's frame is in the world at the handover (turned as the world): a free body's at its
+    pivot, every other one's at the origin."""
+    return body.pivot if body.joint == "free" else np.zeros(3)
 
 
 class _Writer:
@@ -236,8 +242,9 @@ class _Writer:
 
     def body(self, parent: ET.Element, k: int, centres: dict) -> None:
         body, hull = self.rig.bodies[k], self.hulls[k]
-        frame = body.pivot if body.joint == "free" else np.zeros(3)
-        element = ET.SubElement(parent, "body", name=body.name, pos=_vec(frame))
+        frame = _frame(body)
+        carrier = np.zeros(3) if body.parent is None else _frame(self.rig.bodies[body.parent])
+        element = ET.SubElement(parent, "body", name=body.name, pos=_vec(frame - carrier))
         _inertial(element, hull, centres.get(k), frame)
         entry = {"body": body.name, "joint": body.joint, "source": body.source, "why": body.why}
         entry["left_out"] = list(body.left_out)
