@@ -166,3 +166,28 @@ def test_a_run_without_physics_is_told_to_train_trace():
     loaded = SimpleNamespace(predictor=SimpleNamespace(model=model), config=None, path="runs/fan_defgs")
     with pytest.raises(RunError, match="runs/fan_defgs: a defgs run has no physics"):
         build_model(loaded)
+
+
+def test_a_part_carried_by_a_free_body_turns_about_its_own_hinge():
+    """A small arm on a hinge through ``PIVOT`` carried by a large free body centred away from it: in
+    MuJoCo the arm turns about that hinge (its pivot stays put while the heavy body barely moves)."""
+    up = np.array([0.0, 0.0, 1.0])
+    carrier = Body(
+        name="body", rows=torch.tensor([True] * 400 + [False] * 300), joint="free", axis=np.zeros(3),
+        pivot=np.array([-1.0, 0.0, 0.4]), velocity=np.zeros(6), points=box([-1.0, 0.0, 0.4], (1.2, 1.2, 1.2), 400),
+        source="free body",
+    )  # fmt: skip
+    model = IdentifiedModel([("1", -1)], np.zeros((1, 1)), (True,), 0.0, np.zeros(1), np.array([2.0]))
+    arm = Body(
+        name="arm", rows=torch.tensor([False] * 400 + [True] * 300), joint="hinge", axis=AXIS, pivot=PIVOT,
+        parent=0, model=model, velocity=np.array([2.0]), points=box(PIVOT + [0.3, 0.0, 0.0], n=300),
+    )  # fmt: skip
+    rig = Rig(t0=0.0, t_max=0.0, bodies=[carrier, arm], up=up)
+    xml, report = mjcf_text(rig)
+    motion = simulate(xml, rig, 0.5)
+    for t in (0.1, 0.3, 0.5):
+        turn = motion.transforms(t)[1]
+        np.testing.assert_allclose(turn[:3, :3] @ PIVOT + turn[:3, 3], PIVOT, atol=5e-3)  # the hinge stays
+        r = turn[:3, :3]  # a turn about +y (AXIS)
+        assert abs(math.atan2(r[0, 2] - r[2, 0], r[0, 0] + r[2, 2]) - 2.0 * t) < 0.05 * 2.0 * t
+    assert report["bodies"][1]["parent"] == "body"
