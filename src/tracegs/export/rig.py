@@ -42,6 +42,9 @@ inertias, so any density gives the same motion."""
 RAIL_TURN = 0.1
 """Smallest turn (radians) over the span of a hinge that a group on the learned physics is put on;
 a straight motion is a turn about a far axis too, and a rail is what it is."""
+DISTINCT_AXES = math.radians(10)
+"""Smallest angle between the axes of two rigid parts of a group, each on a joint of its own, for the
+group to be exported as those parts rather than on its one joint."""
 TWIST_RESIDUAL = 0.5
 """Largest RMS residual of a group's best rigid velocity field, relative to its RMS speed, for the
 learned physics to move it as one body."""
@@ -270,6 +273,18 @@ def _twist(model, x0: torch.Tensor, t0: float) -> tuple:
     )  # fmt: skip
 
 
+def _distinct_joints(parts: list[Body]) -> bool:
+    """Whether the rigid parts of a group turn or slide on joints of their own: each on a hinge or a
+    rail, two of them of different kinds or axes more than ``DISTINCT_AXES`` apart."""
+    if len(parts) < 2 or any(p.joint not in ("hinge", "slide") for p in parts):
+        return False
+    return any(
+        a.joint != b.joint or abs(float(a.axis @ b.axis)) < math.cos(DISTINCT_AXES)
+        for i, a in enumerate(parts)
+        for b in parts[i + 1 :]
+    )
+
+
 def _carried(bodies: list[Body], start: torch.Tensor, path: list[torch.Tensor], times, settings) -> None:
     """Each free body (a free body of the run, or one on the learned physics) that turns or slides on a
     joint of its own in the frame of a larger body (a wing on a drifting satellite, a chain's second
@@ -338,18 +353,21 @@ def find_rig(predictor, extent: float, up: np.ndarray | None = None) -> Rig:
             continue
         if path is None:
             path = [model.deform(float(t))["means"] for t in times]
-        body, _, _ = _on_joint(f"group{label}", rows, start[rows], [p[rows] for p in path], times, settings)
-        if body is not None:
-            bodies.append(body)
-        else:  # its rigid parts (as a joint part's group is cut), each on a joint or by its twist
-            split = split_parts(start, u, path, times, rows, 0.0025 * extent).to(rows.device)
-            pieces = [rows.clone().index_put_((rows,), split == k) for k in range(1, int(split.max()) + 1)]
-            pieces = [p for p in pieces if int(p.sum()) >= MIN_GAUSSIANS] or [rows]
-            for i, piece in enumerate(pieces):
-                name = f"group{label}" + (f"_{i + 1}" if len(pieces) > 1 else "")
-                x0 = start[piece]
-                body, rigid, _ = _on_joint(name, piece, x0, [p[piece] for p in path], times, settings)
-                bodies.append(body or _twist_body(name, piece, _np(x0), _twist(model, x0, t0), rigid))
+        whole, _, _ = _on_joint(f"group{label}", rows, start[rows], [p[rows] for p in path], times, settings)
+        # its rigid parts (as a joint part's group is cut): each on a joint, or by its twist; a group on
+        # one joint stays one body unless its parts turn on joints of their own (a tray on a seat)
+        split = split_parts(start, u, path, times, rows, 0.0025 * extent).to(rows.device)
+        pieces = [rows.clone().index_put_((rows,), split == k) for k in range(1, int(split.max()) + 1)]
+        pieces = [p for p in pieces if int(p.sum()) >= MIN_GAUSSIANS] or [rows]
+        parts = []
+        for i, piece in enumerate(pieces):
+            name = f"group{label}" + (f"_{i + 1}" if len(pieces) > 1 else "")
+            x0 = start[piece]
+            body, rigid, _ = _on_joint(name, piece, x0, [p[piece] for p in path], times, settings)
+            parts.append(body or _twist_body(name, piece, _np(x0), _twist(model, x0, t0), rigid))
+        if whole is not None and not _distinct_joints(parts):
+            parts = [whole]
+        bodies += parts
         taken |= rows
     if path is None and any(b.joint == "free" and b.source != "identified model" for b in bodies):
         path = [model.deform(float(t))["means"] for t in times]
