@@ -10,8 +10,10 @@ hinge it spins on) or a thrown part (a free joint over a floor); each free body 
 other moving groups keep the learned physics in the run, which has no simulator term: each is put
 on the hinge or rail that carries its Gaussians along f_defo's path (``extrapolate.joints.fit_joint``),
 moving on at its velocity there with its acceleration held (the learned physics' constant
-accelerations); else each of its rigid parts (``chain.split_parts``) is, or moves as its learned
-physics does at the handover (``_twist_body``); the body's ``why`` says which and why.
+accelerations), unless its rigid parts (``chain.split_parts``) turn on joints of their own; else
+each of its rigid parts is, or moves as its learned physics does at the handover (``_twist_body``);
+a free body that turns on a joint in a larger body's frame becomes its child (``_carried``). The
+body's ``why`` says which and why.
 
 Each body's shape is the convex hull of its Gaussians' means at the handover (simulators collide
 convex shapes, and a part's Gaussians lie on its surface, which the hull closes), its mass and
