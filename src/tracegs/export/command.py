@@ -119,7 +119,10 @@ def export_run(
     if fmt not in FORMATS:
         raise ValueError(f"--format {fmt!r}: expected one of {', '.join(FORMATS)}")
     if (time is None) == (times is None):
-        raise ValueError("give --time T or --times START:STOP:STEP" + (", not both" if times else ""))
+        raise ValueError(
+            "give --time T or --times START:STOP:STEP"
+            + (", not both" if times else " (or --mjcf FILE / --urdf DIR for simulators)")
+        )
     sequence = parse_times(times) if times is not None else [check_time(float(time), math.inf)]
     run = Path(run)
     predictor = load_run(run, device).predictor
