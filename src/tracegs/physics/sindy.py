@@ -273,13 +273,14 @@ def shoot(
         return ((rows[1:] - rows[0]) / h[:, None]).T
 
     x0 = np.concatenate([np.concatenate([q0, v0]) for _, _, q0, v0 in pieces] + [xi[active]])
-    fit = least_squares(residual, x0, jac=jacobian, method="lm", x_scale="jac", max_nfev=50 * len(x0))
+    with np.errstate(all="ignore"):  # a set of terms whose rollout blows up is scored as such, not warned of
+        fit = least_squares(residual, x0, jac=jacobian, method="lm", x_scale="jac", max_nfev=50 * len(x0))
+        r = residual(fit.x)
+        noise = float(r @ r) / max(len(r) - len(fit.x), 1) + 1e-300
+        information = fit.jac.T @ fit.jac
+        rms = float(np.sqrt(np.mean(r**2)))
     full, significance = xi.copy(), np.zeros(xi.shape)
     full[active] = fit.x[m:]
-    r = residual(fit.x)
-    noise = float(r @ r) / max(len(r) - len(fit.x), 1) + 1e-300
-    with np.errstate(all="ignore"):
-        information = fit.jac.T @ fit.jac
     try:  # (a fit that blew up says nothing of its terms' significance: zeros)
         if np.isfinite(information).all() and np.isfinite(fit.x).all():
             variance = np.diag(np.linalg.pinv(information))[m:] * noise
@@ -289,4 +290,4 @@ def shoot(
     states = [
         (fit.x[2 * n * k : 2 * n * k + n], fit.x[2 * n * k + n : 2 * n * (k + 1)]) for k in range(len(pieces))
     ]
-    return full, states, float(np.sqrt(np.mean(r**2))), significance
+    return full, states, rms, significance
