@@ -39,7 +39,7 @@ def hinge_rig(model: IdentifiedModel, points: np.ndarray, t0: float) -> Rig:
         name="arm", rows=torch.ones(len(points), dtype=torch.bool), joint="hinge", axis=AXIS, pivot=PIVOT,
         model=model, velocity=np.array([model.v_end[0]]), points=points,
     )  # fmt: skip
-    return Rig(t0=t0, t_max=t0, bodies=[body], up=np.array([0.0, 0.0, 1.0]))
+    return Rig(t0=t0, bodies=[body], up=np.array([0.0, 0.0, 1.0]))
 
 
 def angles(motion, times) -> np.ndarray:
@@ -121,7 +121,7 @@ def test_a_thrown_ball_bounces_on_its_floor_with_its_restitution():
         model=model, velocity=np.zeros(6), acceleration=-g * up, points=sphere,
         floor={"normal": up, "offset": 0.0, "restitution": e, "radius": 0.05},
     )  # fmt: skip
-    rig = Rig(t0=0.0, t_max=0.0, bodies=[body], up=up)
+    rig = Rig(t0=0.0, bodies=[body], up=up)
     xml, _ = mjcf_text(rig)
     motion = simulate(xml, rig, 1.0)
     centre = np.array([0.0, 0.0, h, 1.0])
@@ -182,7 +182,7 @@ def test_a_part_carried_by_a_free_body_turns_about_its_own_hinge():
         name="arm", rows=torch.tensor([False] * 400 + [True] * 300), joint="hinge", axis=AXIS, pivot=PIVOT,
         parent=0, model=model, velocity=np.array([2.0]), points=box(PIVOT + [0.3, 0.0, 0.0], n=300),
     )  # fmt: skip
-    rig = Rig(t0=0.0, t_max=0.0, bodies=[carrier, arm], up=up)
+    rig = Rig(t0=0.0, bodies=[carrier, arm], up=up)
     xml, report = mjcf_text(rig)
     motion = simulate(xml, rig, 0.5)
     for t in (0.1, 0.3, 0.5):

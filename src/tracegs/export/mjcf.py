@@ -26,6 +26,7 @@ cuts through stands on it.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import xml.etree.ElementTree as ET
@@ -273,7 +274,7 @@ class _Writer:
                 joint = ET.SubElement(
                     element, "joint", name=name, type="slide", pos=_vec(body.pivot), axis=_vec(direction)
                 )
-                moved = Body(**{**vars(body), "coordinate": i, "joint": "slide"})
+                moved = dataclasses.replace(body, coordinate=i, joint="slide")
                 entry["left_out"] += self.terms(moved, mass, joint, name)
                 self.qpos.append(0.0)
                 self.qvel.append(float(body.velocity[i]))

@@ -32,7 +32,7 @@ import torch
 
 from ..extrapolate.chain import split_parts
 from ..extrapolate.free_bodies import moving_groups
-from ..extrapolate.joints import MIN_GAUSSIANS, RIGID_TOLERANCE, fit_joint, part_transforms
+from ..extrapolate.joints import MIN_GAUSSIANS, fit_joint, fits_joint, frame_times, part_transforms
 from ..physics.free_body import FreeBody, fit_rigid_velocity
 from ..physics.identify import IdentifiedModel
 from ..physics.integrate import particle_velocity
@@ -106,11 +106,14 @@ class Rig:
     """The world (the Gaussians of no body) and the bodies at the handover ``t0``."""
 
     t0: float
-    t_max: float
     bodies: list[Body]
     up: np.ndarray
     """[3] the scene's up (the cameras' mean up): gravity's direction is down."""
-    report: list[dict] = field(default_factory=list)
+
+
+def _rms_radius(points: np.ndarray, centre: np.ndarray) -> float:
+    """The RMS distance of ``points`` [M, 3] from ``centre`` [3] (0 for none)."""
+    return float(np.sqrt(((points - centre) ** 2).sum(1).mean())) if len(points) else 0.0
 
 
 def _np(x) -> np.ndarray:
@@ -142,12 +145,8 @@ def _from_part(k: int, part: dict, rows: torch.Tensor, points: np.ndarray) -> Bo
             **common,
         )  # fmt: skip
     if kind == "planar":
-        rate = float(np.linalg.norm(turn))
-        axis = (
-            turn / rate if rate > 0 else np.cross(*_np(part["basis"])[:2]) if len(part["basis"]) > 1 else None
-        )
-        if axis is None or not np.isfinite(axis).all() or np.linalg.norm(axis) == 0:
-            axis = np.array([0.0, 0.0, 1.0])
+        rate = float(np.linalg.norm(turn))  # it spins about its spin, else across its plane of motion
+        axis = turn if rate > 0 else np.cross(*_np(part["basis"])[:2])
         return Body(
             joint="planar", axis=axis / np.linalg.norm(axis), pivot=_np(part["pivot"]),
             basis=_np(part["basis"]), velocity=np.concatenate([model.v_end, [rate]]),
@@ -158,7 +157,7 @@ def _from_part(k: int, part: dict, rows: torch.Tensor, points: np.ndarray) -> Bo
     velocity = _np(part["velocity"]) + up * float(model.v_end[0])
     floor = None
     if contact is not None:  # the centre stops at ``contact.position`` along ``up``: a ball's radius above it
-        radius = float(np.sqrt(((points - centre) ** 2).sum(1).mean())) if len(points) else 0.0
+        radius = _rms_radius(points, centre)
         offset = contact.position - radius + (float(centre @ up) - float(model.q_end[0]))
         floor = {"normal": up, "offset": offset, "restitution": contact.restitution, "radius": radius}
     return Body(
@@ -192,9 +191,7 @@ def _on_joint(name: str, rows, x0: torch.Tensor, path: list[torch.Tensor], times
     less than ``RAIL_TURN`` is a rail), moving on at its velocity there with its acceleration held;
     None where none does."""
     joint, q, residuals = fit_joint(x0, path, RAIL_TURN)
-    if joint is None or residuals["rigid"] > RIGID_TOLERANCE:
-        return None, residuals["rigid"], math.inf
-    if residuals[joint["joint"]] > residuals["rigid"] + settings.joint_fit_tolerance:
+    if joint is None or not fits_joint(joint, residuals, settings):
         return None, residuals["rigid"], math.inf
     q = _np(q)
     v, a = _held(times, q)
@@ -220,7 +217,7 @@ def _twist_body(name: str, rows, points: np.ndarray, twist: tuple, rigid: float)
     body is fixed."""
     v, w, residual, acceleration, angular = twist
     centre = points.mean(0)
-    radius = float(np.sqrt(((points - centre) ** 2).sum(1).mean())) if len(points) else 0.0
+    radius = _rms_radius(points, centre)
     common = {"name": name, "rows": rows, "points": points, "source": "learned physics"}
     held = "the learned physics (no model adopted) at the handover, its acceleration held"
     if residual > TWIST_RESIDUAL:
@@ -293,6 +290,8 @@ def _carried(bodies: list[Body], start: torch.Tensor, path: list[torch.Tensor], 
     link) becomes that body's child on that joint: its path in the other's frame (f_defo's rigid
     transforms of that body) carried by a hinge or a rail (``_on_joint``), the body whose joint fits
     it best; in place. Its motion is then its joint's, moving on at its velocity there."""
+    if not any(b.joint == "free" and b.source != "identified model" for b in bodies):
+        return
     frames = {}
     for k, body in enumerate(bodies):
         if int(body.rows.sum()) >= MIN_GAUSSIANS:
@@ -345,16 +344,13 @@ def find_rig(predictor, extent: float, up: np.ndarray | None = None) -> Rig:
             if bool(rows.any()):
                 bodies.append(_from_free_body(k, row, rows, _np(start[rows])))
                 taken |= rows
-    steps = int(math.floor(t0 / model.dt_max + 1e-6))
-    times = np.array([max(0.0, t0 - k * model.dt_max) for k in range(steps, -1, -1)])
+    times = np.array(frame_times(model, t0))
+    path = [model.deform(float(t))["means"] for t in times]
     _, _, u, groups = moving_groups(predictor, t0, extent, settings.free_body_window)
-    path = None
     for label in range(1, int(groups.max()) + 1 if groups.numel() else 1):
         rows = (groups == label) & ~taken
         if int(rows.sum()) < MIN_GAUSSIANS:
             continue
-        if path is None:
-            path = [model.deform(float(t))["means"] for t in times]
         whole, _, _ = _on_joint(f"group{label}", rows, start[rows], [p[rows] for p in path], times, settings)
         # its rigid parts (as a joint part's group is cut): each on a joint, or by its twist; a group on
         # one joint stays one body unless its parts turn on joints of their own (a tray on a seat)
@@ -371,13 +367,5 @@ def find_rig(predictor, extent: float, up: np.ndarray | None = None) -> Rig:
             parts = [whole]
         bodies += parts
         taken |= rows
-    if path is None and any(b.joint == "free" and b.source != "identified model" for b in bodies):
-        path = [model.deform(float(t))["means"] for t in times]
-    if path is not None:
-        _carried(bodies, start, path, times, settings)
-    for body in bodies:  # a child's joint is in its parent's frame at the handover: the world's
-        if body.parent is not None and body.parent >= len(bodies):
-            body.parent = None
-    return Rig(
-        t0, predictor.t_max, bodies, np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, float)
-    )
+    _carried(bodies, start, path, times, settings)
+    return Rig(t0, bodies, np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, float))

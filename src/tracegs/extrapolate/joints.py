@@ -114,7 +114,13 @@ def fit_joint(
     return (None, None, residuals) if best is None else (*best, residuals)
 
 
-def _fits(joint: dict, residuals: dict, settings) -> bool:
+def frame_times(model, t0: float) -> list[float]:
+    """The frame times up to ``t0`` (the handover, last), ``model.dt_max`` apart, t = 0 included."""
+    steps = int(math.floor(t0 / model.dt_max + 1e-6))
+    return [max(0.0, t0 - k * model.dt_max) for k in range(steps, -1, -1)]
+
+
+def fits_joint(joint: dict, residuals: dict, settings) -> bool:
     """Whether a part moves rigidly (``RIGID_TOLERANCE``) and its ``joint`` reproduces its motion about
     as well as its best rigid motion per frame (``joint_fit_tolerance``)."""
     rigid = residuals["rigid"]
@@ -172,7 +178,7 @@ def choose_part_law(
         "joint": None if joint is None else joint["joint"],
         "adopted": False,
     }
-    if joint is None or not _fits(joint, residuals, settings):
+    if joint is None or not fits_joint(joint, residuals, settings):
         return None, {**entry, "why": "not rigid, or on no hinge or rail: the learned physics"}
     t = np.asarray(times)
     # on a turning part a steady turn still bends, so there the model need not beat moving on at the
@@ -223,8 +229,7 @@ def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
     (``choose_part_law``); ``(None, report)`` where none is adopted. ``report``: one entry per part."""
     model, state, settings = predictor.model, predictor.state, predictor.settings
     t0 = predictor.handover_time()
-    steps = int(math.floor(t0 / model.dt_max + 1e-6))  # the frames up to t0, t = 0 included
-    times = [max(0.0, t0 - k * model.dt_max) for k in range(steps, -1, -1)]
+    times = frame_times(model, t0)
     if len(times) < MIN_FRAMES:
         return None, []
     (_, window), moved, u, groups = moving_groups(predictor, t0, extent, settings.free_body_window)
@@ -244,7 +249,7 @@ def choose_joint_laws(predictor, extent: float) -> tuple[dict | None, list]:
         whole = group & ~free
         fit = fit_joint(x0[whole], [p[whole] for p in path]) if int(whole.sum()) >= MIN_GAUSSIANS else None
         pieces = [(group, fit)]
-        if fit is None or fit[0] is None or not _fits(fit[0], fit[2], settings):
+        if fit is None or fit[0] is None or not fits_joint(fit[0], fit[2], settings):
             if int(whole.sum()) >= MIN_GAUSSIANS:
                 thrown.append((label, whole))
             split = split_parts(x0, u, path, times, group, 0.0025 * extent).to(moved.device)
@@ -341,7 +346,7 @@ def carried_by(
 ) -> int | None:
     """The index of the joint part among ``parts`` (with their coordinates ``paths`` [T] over the frames)
     whose transforms carry the Gaussians ``x0`` [M, 3] along their ``path`` [T] x [M, 3] about as well
-    as their own best rigid motion per frame (``joint_fit_tolerance`` of their radius, as ``_fits``):
+    as their own best rigid motion per frame (``joint_fit_tolerance`` of their radius, as ``fits_joint``):
     pieces of one rigid part that f_trd's velocities cut apart; None when no part does. ``residuals``:
     their ``fit_joint`` report's ``radius`` and ``rigid``, when already computed."""
     x = x0.detach().double().cpu()
@@ -366,7 +371,7 @@ def on_frame(
     last), as a part on a joint of its own in the frame of one of the parts with a law (``frames``:
     ``choose_part_law``'s ``"_frame"`` with its ``"report"`` index; not the report ``me``): their path
     in that part's frame (its joint's transforms of its coordinate) put on a joint (``fit_joint``,
-    ``_fits``) and its law chosen and backtested as ``choose_part_law`` does, the carrier's predicted
+    ``fits_joint``) and its law chosen and backtested as ``choose_part_law`` does, the carrier's predicted
     motion and the part's composed on the held-out frames. The frame whose law predicts them best
     there, of those adopted, else of those whose law was fitted (its part None: the two may still be
     one system, ``chain.py``); ``link``: the part's joint, coordinate ``q`` [T] and means ``x0`` in that
@@ -379,7 +384,7 @@ def on_frame(
         rotation, translation = joint_transforms(frame["part"], frame["q"])
         relative = (truth - translation[:, None]) @ rotation  # R^T (x - T), row vectors
         fit = fit_joint(relative[-1], list(relative))
-        if fit[0] is None or not _fits(fit[0], fit[2], settings):
+        if fit[0] is None or not fits_joint(fit[0], fit[2], settings):
             continue
         held = frame["held"]
         seen = (*held, truth[-held[0].shape[0] :])
